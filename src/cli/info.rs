@@ -1,0 +1,133 @@
+//! `kpcn info`: what a file holds and what the denoiser can use.
+
+use crate::io::layout::{Layout, Mapping, Quantity};
+use crate::io::{FrameBuffers, IoError, Plane};
+use clap::Args;
+use std::path::PathBuf;
+
+/// Arguments of `kpcn info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// Image files to describe.
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+    /// Channel naming convention; detected from the channel names when omitted.
+    #[arg(long, value_name = "native|cycles|renderman", value_parser = clap::value_parser!(LayoutArg))]
+    pub layout: Option<LayoutArg>,
+    /// Also list every metadata attribute.
+    #[arg(long)]
+    pub metadata: bool,
+}
+
+/// A `--layout` value.
+#[derive(Debug, Clone, Copy)]
+pub struct LayoutArg(pub Layout);
+
+impl std::str::FromStr for LayoutArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        s.parse().map(LayoutArg)
+    }
+}
+
+/// Prints a report per file; fails if any file is unreadable or incomplete.
+pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
+    let mut failures = 0usize;
+    for (i, path) in args.files.iter().enumerate() {
+        if i > 0 {
+            println!();
+        }
+        let result = FrameBuffers::read(path).and_then(|fb| report(&fb, args));
+        if let Err(e) = result {
+            eprintln!("kpcn: error: {e}");
+            failures += 1;
+        }
+    }
+    match failures {
+        0 => Ok(()),
+        n => Err(crate::cli::Reported(n).into()),
+    }
+}
+
+fn formats(planes: &[&Plane]) -> String {
+    let first = planes[0].format;
+    if planes.iter().all(|p| p.format == first) {
+        first.name().to_string()
+    } else {
+        planes.iter().map(|p| p.format.name()).collect::<Vec<_>>().join(" ")
+    }
+}
+
+fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
+    let w = &fb.window;
+    println!("{}", fb.display_path().display());
+    println!(
+        "  resolution  {}x{} (data window at {},{}; display window {}x{} at {},{})",
+        fb.width(),
+        fb.height(),
+        w.x,
+        w.y,
+        w.full_width,
+        w.full_height,
+        w.full_x,
+        w.full_y
+    );
+    println!("  parts       {}", fb.parts);
+    println!("  channels    {}", fb.planes().len());
+    for (layer, planes) in fb.layers() {
+        let comps: Vec<&str> =
+            planes.iter().map(|p| p.name.rsplit_once('.').map_or(p.name.as_str(), |(_, c)| c)).collect();
+        let bad: usize = planes.iter().map(|p| p.data.iter().filter(|v| !v.is_finite()).count()).sum();
+        let bad = if bad > 0 { format!("  ({bad} NaN/Inf samples)") } else { String::new() };
+        let name = if layer.is_empty() { "(root)" } else { &layer };
+        println!("    {name:<22} {:<12} {}{bad}", comps.join(" "), formats(&planes));
+    }
+    if args.metadata {
+        println!("  metadata");
+        for a in &fb.attributes {
+            println!("    {:<28} {:<8} {}", a.name, a.type_name, a.text);
+        }
+    }
+
+    let mapping = Mapping::for_frame(fb, args.layout.map(|l| l.0));
+    let how = if mapping.detected { "auto-detected" } else { "from --layout" };
+    println!("  layout      {} ({how})", mapping.layout);
+    println!("  KPCN inputs");
+    for e in &mapping.entries {
+        let q = e.quantity;
+        let status = match (e.mean_status(), q.required()) {
+            ("missing", false) => "absent (optional: not a network input)".to_string(),
+            (s, _) => format!("{s:<8} {}", e.mean),
+        };
+        println!("    {:<11} {status}", q.name());
+        if e.mean_status() != "missing" {
+            println!("    {:<11} variance {:<9} {}", "", e.variance_status(), e.variance_description());
+        }
+    }
+    let missing = mapping.missing_required();
+    if missing.is_empty() {
+        let estimated: Vec<&str> = Quantity::ALL
+            .iter()
+            .map(|&q| mapping.entry_for(q))
+            .filter(|e| e.variance_status() == "estimated")
+            .map(|e| e.quantity.name())
+            .collect();
+        if estimated.is_empty() {
+            println!("  verdict     complete: every network input is in the file");
+        } else {
+            println!(
+                "  verdict     usable: variance of {} will be estimated (less accurate than rendered variance)",
+                estimated.join(", ")
+            );
+        }
+        Ok(())
+    } else {
+        println!("  verdict     incomplete: the denoiser cannot run on this file");
+        Err(IoError::MissingChannels {
+            path: fb.display_path(),
+            layout: mapping.layout.to_string(),
+            missing,
+            hint: mapping.hint().into(),
+        })
+    }
+}

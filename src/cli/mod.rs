@@ -1,0 +1,54 @@
+//! The `kpcn` command line: argument definitions and the commands, thin shells over the
+//! library.
+
+mod info;
+
+use clap::{Parser, Subcommand};
+
+/// Command-line arguments of `kpcn`.
+#[derive(Debug, Parser)]
+#[command(
+    name = "kpcn",
+    version,
+    about = "Kernel-predicting Monte Carlo render denoiser for layered EXRs",
+    long_about = "kpcn reads layered EXRs (KPCN's native layout, Blender Cycles passes or RenderMan \
+                  denoise AOVs) through OpenImageIO and denoises them with a kernel-predicting \
+                  convolutional network (Bako et al. 2017).\n\n\
+                  Exit status: 0 on success, 1 on any error (the message names the file and what to do).",
+    after_help = "Examples:\n  kpcn info render.0001.exr\n  kpcn info --layout cycles shot/*.exr"
+)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Describe files: resolution, parts, channels by layer, the detected layout and which
+    /// KPCN inputs are present, derived, estimated or missing.
+    ///
+    /// Exits with status 1 when a file cannot be read or lacks inputs the network needs, so
+    /// it can gate a pipeline step.
+    Info(info::InfoArgs),
+}
+
+/// Runs the parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(args) => info::run(&args),
+    }
+}
+
+/// Errors already printed by a command; `main` only sets the exit status.
+#[derive(Debug)]
+pub struct Reported(pub usize);
+
+impl std::fmt::Display for Reported {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} file(s) failed", self.0)
+    }
+}
+
+impl std::error::Error for Reported {}

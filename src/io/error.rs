@@ -1,0 +1,122 @@
+//! Typed I/O errors. Each message reads `<file>: <what> — <what to do>`.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong reading or writing frames.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// OpenImageIO could not open the file at all.
+    #[error("{}: cannot open: {reason} — check the path and that it is an image OpenImageIO reads (e.g. EXR)", path.display())]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// OpenImageIO's error text.
+        reason: String,
+    },
+    /// The header opened but pixels could not be decoded.
+    #[error("{}: cannot read the pixels of part {subimage}: {reason} — the file is truncated or corrupt; re-render or copy it again", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Subimage (EXR part) index.
+        subimage: usize,
+        /// OpenImageIO's error text.
+        reason: String,
+    },
+    /// Parts of one multi-part file disagree in resolution.
+    #[error("{}: part {subimage} (`{name}`) is {width}x{height} but part 0 is {width0}x{height0} — write every AOV of a frame at one resolution", path.display())]
+    PartSizeMismatch {
+        /// The file.
+        path: PathBuf,
+        /// The offending part.
+        subimage: usize,
+        /// Its name.
+        name: String,
+        /// Its size.
+        width: usize,
+        /// Its size.
+        height: usize,
+        /// Part 0's size.
+        width0: usize,
+        /// Part 0's size.
+        height0: usize,
+    },
+    /// Deep (multi-sample) images are not supported.
+    #[error("{}: part {subimage} is a deep image — flatten it first (`oiiotool IN --flatten -o OUT`)", path.display())]
+    Deep {
+        /// The file.
+        path: PathBuf,
+        /// The part.
+        subimage: usize,
+    },
+    /// Writing failed.
+    #[error("{}: cannot write: {reason} — check that the folder exists, is writable and has free space", path.display())]
+    Write {
+        /// The target file.
+        path: PathBuf,
+        /// What failed.
+        reason: String,
+    },
+    /// `--no-clobber` and the target exists.
+    #[error("{}: already exists and --no-clobber was given — remove it, choose another name, or drop --no-clobber", path.display())]
+    Exists {
+        /// The target file.
+        path: PathBuf,
+    },
+    /// Layered output needs EXR.
+    #[error("{}: output must be an OpenEXR file ending in .exr — layered channels can only be written to EXR", path.display())]
+    NotExr {
+        /// The target file.
+        path: PathBuf,
+    },
+    /// A channel buffer of the wrong length was handed to a frame.
+    #[error("{}: channel `{channel}` has {got} samples but the frame is {width}x{height} — give one sample per pixel", path.display())]
+    ChannelSize {
+        /// The frame's file, or `<memory>`.
+        path: PathBuf,
+        /// The channel.
+        channel: String,
+        /// Samples given.
+        got: usize,
+        /// Frame size.
+        width: usize,
+        /// Frame size.
+        height: usize,
+    },
+    /// A channel asked for by name is not in the frame.
+    #[error("{}: no channel `{channel}` in the frame — check the name (`kpcn info` lists the channels)", path.display())]
+    NoSuchChannel {
+        /// The file.
+        path: PathBuf,
+        /// The channel.
+        channel: String,
+    },
+    /// Channels a layout needs are absent.
+    #[error("{}: missing {} for the {layout} layout — {hint}", path.display(), describe_missing(missing))]
+    MissingChannels {
+        /// The file.
+        path: PathBuf,
+        /// Layout name.
+        layout: String,
+        /// Channel names (or alternatives) that were looked for.
+        missing: Vec<String>,
+        /// What to do.
+        hint: String,
+    },
+    /// An unknown compression name.
+    #[error("unknown EXR compression `{0}` — use one of none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab")]
+    Compression(String),
+    /// Anything else from the file system.
+    #[error("{}: {source}", path.display())]
+    Fs {
+        /// The path involved.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+fn describe_missing(missing: &[String]) -> String {
+    let noun = if missing.len() == 1 { "channel" } else { "channels" };
+    format!("{noun} {}", missing.join(", "))
+}

@@ -1,0 +1,14 @@
+//! Frames in and out: OpenImageIO through our own C++ shim, the layered-EXR contract
+//! (`layout`), and atomic writes.
+
+mod error;
+mod ffi;
+mod frame;
+pub mod layout;
+mod oiio;
+mod write;
+
+pub use error::IoError;
+pub use frame::{FrameBuffers, Plane, Window};
+pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
+pub use write::{COMPRESSIONS, Part, WriteOptions};

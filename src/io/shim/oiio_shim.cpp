@@ -1,0 +1,287 @@
+// kpcn's thin C shim over OpenImageIO 2.4. See oiio_shim.h for the contract:
+// every exported function catches everything and reports through a status.
+#include "oiio_shim.h"
+
+#include <OpenImageIO/imageio.h>
+#include <OpenImageIO/oiioversion.h>
+
+#include <exception>
+#include <memory>
+#include <string>
+#include <vector>
+
+using namespace OIIO;
+
+namespace {
+
+thread_local std::string g_last_error;
+
+int fail(std::string msg) {
+    if (msg.empty())
+        msg = "unknown OpenImageIO error";
+    // OIIO error texts often end with a newline; keep ours on one line.
+    while (!msg.empty() && (msg.back() == '\n' || msg.back() == ' '))
+        msg.pop_back();
+    g_last_error = std::move(msg);
+    return -1;
+}
+
+int ok() {
+    g_last_error.clear();
+    return 0;
+}
+
+// Runs `f`, turning any exception into a failed status.
+template <typename F> int guarded(F&& f) {
+    try {
+        return f();
+    } catch (const std::exception& e) {
+        return fail(std::string("internal error: ") + e.what());
+    } catch (...) {
+        return fail("internal error: unknown C++ exception");
+    }
+}
+
+int format_code(TypeDesc t) {
+    if (t == TypeDesc::HALF)
+        return KPCN_FORMAT_HALF;
+    if (t == TypeDesc::FLOAT)
+        return KPCN_FORMAT_FLOAT;
+    if (t == TypeDesc::UINT)
+        return KPCN_FORMAT_UINT;
+    return KPCN_FORMAT_OTHER;
+}
+
+bool is_single_string(TypeDesc t) {
+    return t.basetype == TypeDesc::STRING && t.arraylen == 0 && t.aggregate == TypeDesc::SCALAR;
+}
+
+}  // namespace
+
+struct kpcn_input {
+    std::unique_ptr<ImageInput> in;
+    std::vector<ImageSpec> specs;
+    std::vector<std::vector<std::string>> attr_texts;  // per subimage, per attribute
+    std::vector<std::string> names;                   // per subimage
+};
+
+struct kpcn_output {
+    std::unique_ptr<ImageOutput> out;
+    std::vector<ImageSpec> specs;
+    std::string path;
+    int part = 0;
+};
+
+extern "C" {
+
+const char* kpcn_oiio_last_error(void) { return g_last_error.c_str(); }
+
+int kpcn_oiio_version(void) { return OIIO_VERSION; }
+
+int kpcn_input_open(const char* path, kpcn_input** out) {
+    return guarded([&]() {
+        *out = nullptr;
+        auto in = ImageInput::open(path);
+        if (!in)
+            return fail(OIIO::geterror());
+        auto h = std::make_unique<kpcn_input>();
+        for (int s = 0; in->seek_subimage(s, 0); ++s) {
+            ImageSpec spec = in->spec(s, 0);
+            std::vector<std::string> texts;
+            texts.reserve(spec.extra_attribs.size());
+            for (const ParamValue& p : spec.extra_attribs)
+                texts.push_back(is_single_string(p.type()) ? std::string(p.get_ustring().string())
+                                                           : p.get_string(4096));
+            std::string name = spec.get_string_attribute("oiio:subimagename");
+            if (name.empty())
+                name = spec.get_string_attribute("name");
+            h->names.push_back(name);
+            h->attr_texts.push_back(std::move(texts));
+            h->specs.push_back(std::move(spec));
+        }
+        if (in->has_error())
+            return fail(in->geterror());
+        if (h->specs.empty())
+            return fail("the file holds no image");
+        h->in = std::move(in);
+        *out = h.release();
+        return ok();
+    });
+}
+
+void kpcn_input_close(kpcn_input* in) {
+    try {
+        if (in && in->in)
+            in->in->close();
+    } catch (...) {
+    }
+    delete in;
+}
+
+const char* kpcn_input_format_name(const kpcn_input* in) { return in->in->format_name(); }
+
+int kpcn_input_subimages(const kpcn_input* in) { return int(in->specs.size()); }
+
+int kpcn_input_subimage_info(const kpcn_input* in, int s, kpcn_subimage_info* info) {
+    if (s < 0 || s >= int(in->specs.size()))
+        return fail("subimage index out of range");
+    const ImageSpec& sp = in->specs[s];
+    info->x = sp.x;
+    info->y = sp.y;
+    info->width = sp.width;
+    info->height = sp.height;
+    info->full_x = sp.full_x;
+    info->full_y = sp.full_y;
+    info->full_width = sp.full_width;
+    info->full_height = sp.full_height;
+    info->nchannels = sp.nchannels;
+    info->tile_width = sp.tile_width;
+    info->tile_height = sp.tile_height;
+    info->deep = sp.deep ? 1 : 0;
+    return ok();
+}
+
+const char* kpcn_input_subimage_name(const kpcn_input* in, int s) {
+    return in->names[s].c_str();
+}
+
+const char* kpcn_input_channel_name(const kpcn_input* in, int s, int c) {
+    return in->specs[s].channelnames[c].c_str();
+}
+
+int kpcn_input_channel_format(const kpcn_input* in, int s, int c) {
+    return format_code(in->specs[s].channelformat(c));
+}
+
+int kpcn_input_attribute_count(const kpcn_input* in, int s) {
+    return int(in->specs[s].extra_attribs.size());
+}
+
+int kpcn_input_attribute(const kpcn_input* in, int s, int i, kpcn_attribute* a) {
+    if (s < 0 || s >= int(in->specs.size()) || i < 0 || i >= int(in->specs[s].extra_attribs.size()))
+        return fail("attribute index out of range");
+    const ParamValue& p = in->specs[s].extra_attribs[i];
+    a->name = p.name().c_str();
+    a->type = p.type().c_str();
+    a->text = in->attr_texts[s][i].c_str();
+    a->is_string = is_single_string(p.type()) ? 1 : 0;
+    bool has_strings = p.type().basetype == TypeDesc::STRING || p.type().basetype == TypeDesc::PTR;
+    a->data = has_strings ? nullptr : p.data();
+    a->size = has_strings ? 0 : size_t(p.datasize());
+    return ok();
+}
+
+int kpcn_input_read_rows(kpcn_input* in, int s, int ybegin, int yend, int chbegin, int chend,
+                         float* data) {
+    return guarded([&]() {
+        if (s < 0 || s >= int(in->specs.size()))
+            return fail("subimage index out of range");
+        const ImageSpec& sp = in->specs[s];
+        if (sp.deep)
+            return fail("deep images are not supported");
+        bool good;
+        if (sp.tile_width > 0)
+            good = in->in->read_tiles(s, 0, sp.x, sp.x + sp.width, ybegin, yend, sp.z, sp.z + 1,
+                                      chbegin, chend, TypeDesc::FLOAT, data);
+        else
+            good = in->in->read_scanlines(s, 0, ybegin, yend, sp.z, chbegin, chend,
+                                          TypeDesc::FLOAT, data);
+        if (!good || in->in->has_error())
+            return fail(in->in->geterror());
+        return ok();
+    });
+}
+
+namespace {
+ImageSpec make_spec(const kpcn_output_spec* os) {
+    ImageSpec spec(os->width, os->height, os->nchannels, TypeDesc::FLOAT);
+    spec.x = os->x;
+    spec.y = os->y;
+    spec.full_x = os->full_x;
+    spec.full_y = os->full_y;
+    spec.full_width = os->full_width;
+    spec.full_height = os->full_height;
+    spec.channelnames.clear();
+    spec.channelformats.clear();
+    bool any_half = false;
+    for (int c = 0; c < os->nchannels; ++c) {
+        spec.channelnames.emplace_back(os->channel_names[c]);
+        bool half = os->channel_formats[c] == KPCN_FORMAT_HALF;
+        any_half |= half;
+        spec.channelformats.push_back(half ? TypeDesc::HALF : TypeDesc::FLOAT);
+    }
+    if (!any_half)
+        spec.channelformats.clear();  // uniform float: let spec.format speak
+    spec.alpha_channel = -1;
+    spec.z_channel = -1;
+    for (int i = 0; i < os->nattributes; ++i) {
+        const kpcn_attribute& a = os->attributes[i];
+        if (a.is_string)
+            spec.attribute(a.name, a.text);
+        else if (a.data)
+            spec.attribute(a.name, TypeDesc(a.type), a.data);
+    }
+    if (os->compression && *os->compression)
+        spec.attribute("compression", os->compression);
+    if (os->part_name && *os->part_name)
+        spec.attribute("oiio:subimagename", os->part_name);
+    return spec;
+}
+}  // namespace
+
+int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, kpcn_output** out) {
+    return guarded([&]() {
+        *out = nullptr;
+        if (nparts < 1)
+            return fail("an image needs at least one part");
+        auto o = ImageOutput::create("openexr");
+        if (!o)
+            return fail(OIIO::geterror());
+        auto h = std::make_unique<kpcn_output>();
+        for (int p = 0; p < nparts; ++p)
+            h->specs.push_back(make_spec(&specs[p]));
+        if (nparts > 1 && !o->supports("multiimage"))
+            return fail("this OpenImageIO cannot write multi-part EXR");
+        bool good = nparts == 1 ? o->open(path, h->specs[0])
+                                : o->open(path, nparts, h->specs.data());
+        if (!good)
+            return fail(o->geterror());
+        h->out = std::move(o);
+        h->path = path;
+        *out = h.release();
+        return ok();
+    });
+}
+
+int kpcn_output_next_part(kpcn_output* out) {
+    return guarded([&]() {
+        if (out->part + 1 >= int(out->specs.size()))
+            return fail("no further part declared");
+        out->part += 1;
+        if (!out->out->open(out->path, out->specs[out->part], ImageOutput::AppendSubimage))
+            return fail(out->out->geterror());
+        return ok();
+    });
+}
+
+int kpcn_output_write_rows(kpcn_output* out, int ybegin, int yend, const float* data) {
+    return guarded([&]() {
+        if (!out->out->write_scanlines(ybegin, yend, 0, TypeDesc::FLOAT, data))
+            return fail(out->out->geterror());
+        return ok();
+    });
+}
+
+int kpcn_output_close(kpcn_output* out) {
+    if (!out)
+        return ok();
+    int status = guarded([&]() {
+        if (!out->out->close())
+            return fail(out->out->geterror());
+        return ok();
+    });
+    delete out;
+    return status;
+}
+
+}  // extern "C"

@@ -1,0 +1,9 @@
+//! kpcn: a kernel-predicting Monte Carlo render denoiser (Bako et al. 2017) for production
+//! pipelines.
+//!
+//! Data flows one way: file → [`io::FrameBuffers`] → [`io::layout::KpcnInputs`] → network →
+//! kernels → buffers → file.
+#![warn(missing_docs)]
+
+pub mod cli;
+pub mod io;

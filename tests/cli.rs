@@ -1,0 +1,83 @@
+//! The `kpcn` binary: exit statuses and messages a pipeline can rely on.
+
+use crate::util::{cycles_dev, native_frame, write};
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn kpcn(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kpcn")).args(args).output().expect("kpcn runs")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn info_reports_a_complete_native_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&native_frame(20, 10, 1, &[]), dir.path(), "shot.0001.exr");
+    let out = kpcn(&["info", path.to_str().unwrap()]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{}{}", stdout, text(&out.stderr));
+    assert!(stdout.contains("20x10"), "{stdout}");
+    assert!(stdout.contains("native (auto-detected)"), "{stdout}");
+    assert!(stdout.contains("verdict     complete"), "{stdout}");
+    assert!(stdout.contains("diffuseVariance"), "{stdout}");
+}
+
+#[test]
+fn info_fails_on_missing_channels_naming_them_and_the_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&native_frame(8, 8, 2, &["normal"]), dir.path(), "nonormal.exr");
+    let out = kpcn(&["info", path.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = text(&out.stderr);
+    let expect = format!("kpcn: error: {}: missing channels normal.R, normal.G, normal.B", path.display());
+    assert!(stderr.starts_with(&expect), "{stderr}");
+    assert!(stderr.contains(" — "), "{stderr}");
+}
+
+#[test]
+fn info_fails_on_unreadable_files_but_reports_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = write(&native_frame(8, 8, 3, &[]), dir.path(), "good.exr");
+    let bad = dir.path().join("truncated.exr");
+    let bytes = std::fs::read(&good).unwrap();
+    std::fs::write(&bad, &bytes[..bytes.len() / 2]).unwrap();
+    let out = kpcn(&["info", "/nonexistent.exr", bad.to_str().unwrap(), good.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("kpcn: error: /nonexistent.exr: cannot open"), "{stderr}");
+    assert!(stderr.contains(&format!("kpcn: error: {}:", bad.display())), "{stderr}");
+    assert!(text(&out.stdout).contains("good.exr"), "the good file is still reported");
+}
+
+#[test]
+fn info_honours_a_layout_override() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&native_frame(8, 8, 4, &[]), dir.path(), "n.exr");
+    let out = kpcn(&["info", "--layout", "cycles", path.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1), "native channels do not satisfy the Cycles layout");
+    assert!(text(&out.stdout).contains("cycles (from --layout)"));
+    assert!(text(&out.stderr).contains("ViewLayer.Combined"), "{}", text(&out.stderr));
+    let out = kpcn(&["info", "--layout", "arnold", path.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "clap rejects unknown layouts");
+}
+
+#[test]
+fn info_on_the_checked_in_example_and_the_cycles_dev_set_reports_all_inputs() {
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/data/spheres-crop-00016spp.exr");
+    let mut files = vec![example];
+    if let Some(dir) = cycles_dev() {
+        for s in ["spheres", "interior"] {
+            for spp in ["00004", "00016", "00064"] {
+                files.push(dir.join(format!("{s}-{spp}spp.exr")));
+            }
+        }
+    }
+    let args: Vec<&str> = std::iter::once("info").chain(files.iter().map(|f| f.to_str().unwrap())).collect();
+    let out = kpcn(&args);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", text(&out.stderr));
+    assert_eq!(stdout.matches("verdict     complete").count(), files.len(), "{stdout}");
+}

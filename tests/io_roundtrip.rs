@@ -1,0 +1,207 @@
+//! Frames survive write → read exactly: samples, formats, windows, metadata, parts.
+
+use crate::util::{Rng, native_frame, stray_files, write};
+use kpcn::io::{Attribute, FrameBuffers, IoError, Part, SampleFormat, Window, WriteOptions};
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+#[test]
+fn f32_channels_round_trip_bit_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (37, 23);
+    let mut rng = Rng(7);
+    // Random bit patterns cover normals, denormals, huge values and both signs;
+    // NaN payloads are not promised, so patterns that are NaN become +Inf.
+    let special = [0.0, -0.0, f32::INFINITY, f32::NEG_INFINITY, f32::MAX, f32::MIN_POSITIVE, 1e-45, 1e30];
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let v = special.get(i).copied().unwrap_or_else(|| f32::from_bits(rng.next_u64() as u32));
+            if v.is_nan() { f32::INFINITY } else { v }
+        })
+        .collect();
+    let mut fb = FrameBuffers::new(w, h);
+    fb.insert("R", SampleFormat::Float, data.clone()).unwrap();
+    let path = write(&fb, dir.path(), "f32.exr");
+    let back = FrameBuffers::read(&path).unwrap();
+    assert_eq!(bits(back.channel("R").unwrap()), bits(&data));
+    assert_eq!(back.plane("R").unwrap().format, SampleFormat::Float);
+}
+
+#[test]
+fn f16_channels_round_trip_bit_exact_for_every_half_value() {
+    let dir = tempfile::tempdir().unwrap();
+    // 256×256 pixels hold all 65536 half bit patterns.
+    let data: Vec<f32> = (0..=u16::MAX).map(|b| half::f16::from_bits(b).to_f32()).collect();
+    let mut fb = FrameBuffers::new(256, 256);
+    fb.insert("diffuse.R", SampleFormat::Half, data.clone()).unwrap();
+    fb.insert("diffuse.G", SampleFormat::Float, data.clone()).unwrap();
+    let path = write(&fb, dir.path(), "f16.exr");
+    let back = FrameBuffers::read(&path).unwrap();
+    let r = back.plane("diffuse.R").unwrap();
+    assert_eq!(r.format, SampleFormat::Half);
+    assert_eq!(back.plane("diffuse.G").unwrap().format, SampleFormat::Float);
+    for (i, (a, b)) in data.iter().zip(&r.data).enumerate() {
+        if a.is_nan() {
+            assert!(b.is_nan(), "pattern {i:#06x}");
+        } else {
+            assert_eq!(a.to_bits(), b.to_bits(), "pattern {i:#06x}");
+        }
+    }
+}
+
+#[test]
+fn metadata_survives_a_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = native_frame(8, 4, 1, &[]);
+    fb.set_attribute(Attribute::float("kpcn:exposure", 1.5));
+    fb.set_attribute(Attribute::string("kpcn:note", "rendered by a fixture — ünïcode ok"));
+    let m: Vec<u8> = (0..16).flat_map(|i| (i as f32).to_ne_bytes()).collect();
+    fb.set_attribute(Attribute {
+        name: "worldToCamera".into(),
+        type_name: "matrix".into(),
+        text: String::new(),
+        raw: Some(m.clone()),
+    });
+    let path = write(&fb, dir.path(), "meta.exr");
+    let back = FrameBuffers::read(&path).unwrap();
+    assert_eq!(back.attribute("kpcn:scene"), Some("fixture"));
+    assert_eq!(back.attribute("kpcn:spp"), Some("16"));
+    assert_eq!(back.attribute("kpcn:exposure"), Some("1.5"));
+    assert_eq!(back.attribute("kpcn:note"), Some("rendered by a fixture — ünïcode ok"));
+    let matrix = back.attributes.iter().find(|a| a.name == "worldToCamera").expect("matrix kept");
+    assert_eq!(matrix.type_name, "matrix");
+    assert_eq!(matrix.raw.as_deref(), Some(m.as_slice()));
+
+    // A second generation keeps them too (what a pipeline step does to a file).
+    let path2 = dir.path().join("meta2.exr");
+    back.write(&path2, &WriteOptions::default()).unwrap();
+    let again = FrameBuffers::read(&path2).unwrap();
+    assert_eq!(again.attributes, back.attributes);
+}
+
+#[test]
+fn data_and_display_windows_survive() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = native_frame(10, 6, 2, &["visibility"]);
+    fb.window = Window { x: 5, y: 3, full_x: 0, full_y: 0, full_width: 20, full_height: 12 };
+    let path = write(&fb, dir.path(), "window.exr");
+    let back = FrameBuffers::read(&path).unwrap();
+    assert_eq!(back.window, fb.window);
+    assert_eq!(back.channel("normal.G"), fb.channel("normal.G"));
+}
+
+#[test]
+fn a_new_layer_is_added_to_a_copy_keeping_every_channel_and_attribute() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(16, 9, 3, &[]), dir.path(), "in.exr");
+    let original = FrameBuffers::read(&input).unwrap();
+    let mut out = original.clone();
+    let rgb = [0.25f32, 0.5, 0.75].map(|v| vec![v; 16 * 9]);
+    out.insert_rgb("denoised", SampleFormat::Half, rgb).unwrap();
+    let output = dir.path().join("out.exr");
+    out.write(&output, &WriteOptions::default()).unwrap();
+    let back = FrameBuffers::read(&output).unwrap();
+    for p in original.planes() {
+        assert_eq!(back.plane(&p.name), Some(p), "channel {} kept", p.name);
+    }
+    assert_eq!(back.channel("denoised.G").unwrap()[0], 0.5);
+    assert_eq!(back.plane("denoised.B").unwrap().format, SampleFormat::Half);
+    assert_eq!(back.attribute("kpcn:scene"), Some("fixture"));
+    assert_eq!(back.planes().len(), original.planes().len() + 3);
+}
+
+#[test]
+fn a_multi_part_file_reads_as_one_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let fb = native_frame(12, 7, 4, &[]);
+    let names: Vec<&str> = fb.channel_names().collect();
+    let (beauty, aux): (Vec<&str>, Vec<&str>) = names.iter().partition(|n| !n.contains('.'));
+    let parts = [Part { name: "beauty", channels: beauty }, Part { name: "aux", channels: aux }];
+    let path = dir.path().join("multi.exr");
+    fb.write_parts(&path, &parts, &WriteOptions::default()).unwrap();
+    let back = FrameBuffers::read(&path).unwrap();
+    assert_eq!(back.parts, 2);
+    assert_eq!(back.planes().len(), fb.planes().len());
+    for p in fb.planes() {
+        assert_eq!(back.channel(&p.name), Some(p.data.as_slice()), "{}", p.name);
+    }
+}
+
+#[test]
+fn repeated_channel_names_across_parts_get_the_part_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = FrameBuffers::new(4, 4);
+    fb.insert("R", SampleFormat::Float, vec![1.0; 16]).unwrap();
+    let path = dir.path().join("dup.exr");
+    let parts = [Part { name: "left", channels: vec!["R"] }, Part { name: "right", channels: vec!["R"] }];
+    fb.write_parts(&path, &parts, &WriteOptions::default()).unwrap();
+    let back = FrameBuffers::read(&path).unwrap();
+    let names: Vec<&str> = back.channel_names().collect();
+    assert_eq!(names, ["R", "right.R"]);
+}
+
+#[test]
+fn replacing_a_file_is_atomic_and_leaves_no_temporary_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&native_frame(8, 8, 5, &[]), dir.path(), "frame.exr");
+    let newer = native_frame(8, 8, 6, &[]);
+    newer.write(&path, &WriteOptions::default()).unwrap();
+    assert_eq!(FrameBuffers::read(&path).unwrap().channel("R"), newer.channel("R"));
+    assert!(stray_files(dir.path(), &["frame.exr"]).is_empty());
+}
+
+#[test]
+fn no_clobber_refuses_and_keeps_the_existing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = native_frame(8, 8, 5, &[]);
+    let path = write(&first, dir.path(), "frame.exr");
+    let opts = WriteOptions { no_clobber: true, ..Default::default() };
+    let err = native_frame(8, 8, 6, &[]).write(&path, &opts).unwrap_err();
+    assert!(matches!(err, IoError::Exists { .. }), "{err}");
+    assert!(err.to_string().contains("--no-clobber"), "{err}");
+    assert_eq!(FrameBuffers::read(&path).unwrap().channel("R"), first.channel("R"));
+    assert!(stray_files(dir.path(), &["frame.exr"]).is_empty());
+    // A fresh name is written.
+    first.write(&dir.path().join("other.exr"), &opts).unwrap();
+}
+
+#[test]
+fn a_failed_write_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    // The target is a non-empty directory: the final rename must fail.
+    let target = dir.path().join("busy.exr");
+    std::fs::create_dir(&target).unwrap();
+    std::fs::write(target.join("keep"), b"x").unwrap();
+    let err = native_frame(8, 8, 5, &[]).write(&target, &WriteOptions::default()).unwrap_err();
+    assert!(matches!(err, IoError::Write { .. }), "{err}");
+    assert!(stray_files(dir.path(), &["busy.exr"]).is_empty());
+    assert!(target.join("keep").exists());
+    // Into a folder that does not exist: an error naming the file, no crash.
+    let err = native_frame(8, 8, 5, &[]).write(&dir.path().join("nope/x.exr"), &WriteOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("nope/x.exr"), "{err}");
+}
+
+#[test]
+fn only_exr_outputs_and_known_compressions_are_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let fb = native_frame(4, 4, 1, &[]);
+    let err = fb.write(&dir.path().join("x.png"), &WriteOptions::default()).unwrap_err();
+    assert!(matches!(err, IoError::NotExr { .. }));
+    let bad = WriteOptions { compression: Some("lzma".into()), ..Default::default() };
+    assert!(matches!(fb.write(&dir.path().join("x.exr"), &bad).unwrap_err(), IoError::Compression(_)));
+    for c in ["none", "piz", "dwaa"] {
+        let o = WriteOptions { compression: Some(c.into()), ..Default::default() };
+        let p = dir.path().join(format!("{c}.exr"));
+        fb.write(&p, &o).unwrap();
+        assert_eq!(FrameBuffers::read(&p).unwrap().attribute("compression"), Some(c));
+    }
+}
+
+#[test]
+fn wrong_length_channels_are_refused() {
+    let mut fb = FrameBuffers::new(4, 4);
+    let err = fb.insert("R", SampleFormat::Float, vec![0.0; 15]).unwrap_err();
+    assert!(err.to_string().contains("15 samples"), "{err}");
+}

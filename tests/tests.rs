@@ -1,0 +1,8 @@
+//! Integration tests, assembled into one binary so linking stays fast.
+
+mod util;
+
+mod cli;
+mod io_errors;
+mod io_roundtrip;
+mod layout_files;

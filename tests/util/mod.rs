@@ -1,0 +1,81 @@
+//! Shared fixtures: small deterministic frames written through our own writer.
+#![allow(dead_code)]
+
+use kpcn::io::{Attribute, FrameBuffers, SampleFormat, WriteOptions};
+use std::path::{Path, PathBuf};
+
+/// A tiny deterministic generator (SplitMix64) so fixtures need no RNG crate.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// Every channel of the native layout (SPEC §3), with half buffers and variances.
+pub fn native_channels() -> Vec<String> {
+    let mut v: Vec<String> = ["R", "G", "B"].map(String::from).to_vec();
+    v.extend(["R", "G", "B"].map(|c| format!("colorA.{c}")));
+    v.push("colorVariance.Z".into());
+    for q in ["diffuse", "specular", "albedo", "normal"] {
+        for l in [q.to_string(), format!("{q}A")] {
+            v.extend(["R", "G", "B"].map(|c| format!("{l}.{c}")));
+        }
+        v.push(format!("{q}Variance.Z"));
+    }
+    for q in ["depth", "visibility"] {
+        v.extend([format!("{q}.Z"), format!("{q}A.Z"), format!("{q}Variance.Z")]);
+    }
+    v
+}
+
+/// A native-layout frame with random content and the channels starting with `drop` left out.
+pub fn native_frame(w: usize, h: usize, seed: u64, drop: &[&str]) -> FrameBuffers {
+    let mut fb = FrameBuffers::new(w, h);
+    let mut rng = Rng(seed);
+    for name in native_channels().iter().filter(|n| !drop.iter().any(|d| n.starts_with(d))) {
+        let data = (0..w * h).map(|_| rng.uniform()).collect();
+        fb.insert(name, SampleFormat::Float, data).expect("size matches");
+    }
+    fb.set_attribute(Attribute::string("kpcn:scene", "fixture"));
+    fb.set_attribute(Attribute::int("kpcn:spp", 16));
+    fb
+}
+
+/// Writes `fb` into `dir/name` and returns the path.
+pub fn write(fb: &FrameBuffers, dir: &Path, name: &str) -> PathBuf {
+    let path = dir.join(name);
+    fb.write(&path, &WriteOptions::default()).expect("fixture writes");
+    path
+}
+
+/// The shared Cycles dev set, when this checkout has it beside it.
+pub fn cycles_dev() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cycles-dev");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!("note: {} is absent; skipping the Cycles dev-set checks", dir.display());
+        None
+    }
+}
+
+/// Files in `dir` other than `keep` (to prove no temporary file was left behind).
+pub fn stray_files(dir: &Path, keep: &[&str]) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .expect("dir readable")
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !keep.contains(&n.as_str()))
+        .collect()
+}
