@@ -25,10 +25,11 @@ fn main() {
     // before OpenImageIO on the link line.
     let oiio = match pkg_config::Config::new().atleast_version("2.4").cargo_metadata(false).probe("OpenImageIO") {
         Ok(lib) => lib,
-        Err(e) => die(&format!(
-            "OpenImageIO 2.4+ development files were not found by pkg-config ({})",
-            e.to_string().lines().next().unwrap_or("no details")
-        )),
+        Err(e) => {
+            let detail = e.to_string();
+            let detail = detail.lines().map(str::trim).find(|l| !l.is_empty()).unwrap_or("not found");
+            die(&format!("OpenImageIO 2.4+ development files were not found by pkg-config ({detail})"))
+        }
     };
 
     let mut build = cc::Build::new();

@@ -1,6 +1,6 @@
 //! The `kpcn` binary: exit statuses and messages a pipeline can rely on.
 
-use crate::util::{cycles_dev, native_frame, write};
+use crate::util::{cycles_dev, garbage, mismatched_parts, native_frame, write};
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -44,11 +44,20 @@ fn info_fails_on_unreadable_files_but_reports_the_rest() {
     let bad = dir.path().join("truncated.exr");
     let bytes = std::fs::read(&good).unwrap();
     std::fs::write(&bad, &bytes[..bytes.len() / 2]).unwrap();
-    let out = kpcn(&["info", "/nonexistent.exr", bad.to_str().unwrap(), good.to_str().unwrap()]);
+    let corrupt = dir.path().join("corrupt.exr");
+    garbage(&corrupt);
+    let parts = dir.path().join("parts.exr");
+    mismatched_parts(&parts);
+    let files = ["/nonexistent.exr", bad.to_str().unwrap(), corrupt.to_str().unwrap(), parts.to_str().unwrap()];
+    let out = kpcn(&[&["info"], &files[..], &[good.to_str().unwrap()]].concat());
     assert_eq!(out.status.code(), Some(1));
     let stderr = text(&out.stderr);
     assert!(stderr.contains("kpcn: error: /nonexistent.exr: cannot open"), "{stderr}");
-    assert!(stderr.contains(&format!("kpcn: error: {}:", bad.display())), "{stderr}");
+    for f in &files[1..] {
+        assert!(stderr.contains(&format!("kpcn: error: {f}: ")), "{f}: {stderr}");
+    }
+    assert!(stderr.contains("is 8x4 but part 0 is 16x8"), "{stderr}");
+    assert_eq!(stderr.lines().count(), 4, "one line per bad file: {stderr}");
     assert!(text(&out.stdout).contains("good.exr"), "the good file is still reported");
 }
 

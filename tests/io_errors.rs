@@ -1,7 +1,7 @@
 //! Bad inputs give errors that name the file, never crashes.
 
-use crate::util::{native_frame, write};
-use kpcn::io::{FrameBuffers, IoError, Output, OutputSpec, SampleFormat, SubimageInfo};
+use crate::util::{garbage, mismatched_parts, native_frame, write};
+use kpcn::io::{FrameBuffers, IoError};
 use std::path::Path;
 
 fn read_err(path: &Path) -> IoError {
@@ -42,10 +42,9 @@ fn corrupt_files_are_errors() {
     let good = write(&native_frame(32, 32, 10, &[]), dir.path(), "good.exr");
     let bytes = std::fs::read(&good).unwrap();
 
-    let garbage = dir.path().join("garbage.exr");
-    std::fs::write(&garbage, (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect::<Vec<_>>())
-        .unwrap();
-    read_err(&garbage);
+    let noise = dir.path().join("garbage.exr");
+    garbage(&noise);
+    read_err(&noise);
 
     let magic_only = dir.path().join("magic.exr");
     let mut m = bytes[..8].to_vec();
@@ -73,33 +72,7 @@ fn corrupt_files_are_errors() {
 fn parts_of_different_sizes_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("mismatch.exr");
-    let info = |w: usize, h: usize| SubimageInfo {
-        x: 0,
-        y: 0,
-        width: w,
-        height: h,
-        full_x: 0,
-        full_y: 0,
-        // OpenEXR wants one display window for all parts; the data windows differ.
-        full_width: 16,
-        full_height: 8,
-        nchannels: 1,
-        tile_height: 0,
-        deep: false,
-    };
-    let spec = |name, w, h| OutputSpec {
-        part_name: name,
-        info: info(w, h),
-        channels: vec![("Y", SampleFormat::Float)],
-        compression: "zip",
-        attributes: &[],
-    };
-    let mut out = Output::create(&path, &[spec("full", 16, 8), spec("half", 8, 4)]).unwrap();
-    out.write_rows(0, 8, &[0.5; 16 * 8]).unwrap();
-    out.next_part().unwrap();
-    out.write_rows(0, 4, &[0.5; 8 * 4]).unwrap();
-    out.close().unwrap();
-
+    mismatched_parts(&path);
     let e = read_err(&path);
     assert!(matches!(e, IoError::PartSizeMismatch { subimage: 1, .. }), "{e}");
     let msg = e.to_string();

@@ -205,3 +205,18 @@ fn wrong_length_channels_are_refused() {
     let err = fb.insert("R", SampleFormat::Float, vec![0.0; 15]).unwrap_err();
     assert!(err.to_string().contains("15 samples"), "{err}");
 }
+
+#[test]
+fn a_layer_can_go_to_a_separate_file_with_the_metadata() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = native_frame(8, 6, 14, &[]);
+    fb.insert_rgb("denoised", SampleFormat::Float, [0.1f32, 0.2, 0.3].map(|v| vec![v; 48])).unwrap();
+    let only = fb.select(&["denoised.R", "denoised.G", "denoised.B"]).unwrap();
+    let path = write(&only, dir.path(), "denoised.exr");
+    let back = FrameBuffers::read(&path).unwrap();
+    let mut names: Vec<&str> = back.channel_names().collect();
+    names.sort();
+    assert_eq!(names, ["denoised.B", "denoised.G", "denoised.R"]);
+    assert_eq!(back.attribute("kpcn:scene"), Some("fixture"));
+    assert!(matches!(fb.select(&["nope.R"]), Err(IoError::NoSuchChannel { .. })));
+}

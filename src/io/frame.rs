@@ -130,6 +130,32 @@ impl FrameBuffers {
         Ok(())
     }
 
+    /// A frame with only the named channels (in that order) and all of this frame's
+    /// metadata: e.g. the denoised layer alone, for writing to a separate file.
+    pub fn select(&self, names: &[&str]) -> Result<FrameBuffers, IoError> {
+        let planes = names
+            .iter()
+            .map(|n| {
+                self.plane(n)
+                    .cloned()
+                    .ok_or_else(|| IoError::NoSuchChannel { path: self.display_path(), channel: n.to_string() })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(FrameBuffers { planes, ..self.clone_header() })
+    }
+
+    fn clone_header(&self) -> FrameBuffers {
+        FrameBuffers {
+            width: self.width,
+            height: self.height,
+            window: self.window,
+            planes: Vec::new(),
+            attributes: self.attributes.clone(),
+            source: self.source.clone(),
+            parts: 1,
+        }
+    }
+
     /// Removes channel `name`, returning it.
     pub fn remove(&mut self, name: &str) -> Option<Plane> {
         let i = self.planes.iter().position(|p| p.name == name)?;

@@ -1,7 +1,7 @@
 //! Shared fixtures: small deterministic frames written through our own writer.
 #![allow(dead_code)]
 
-use kpcn::io::{Attribute, FrameBuffers, SampleFormat, WriteOptions};
+use kpcn::io::{Attribute, FrameBuffers, Output, OutputSpec, SampleFormat, SubimageInfo, WriteOptions};
 use std::path::{Path, PathBuf};
 
 /// A tiny deterministic generator (SplitMix64) so fixtures need no RNG crate.
@@ -78,4 +78,38 @@ pub fn stray_files(dir: &Path, keep: &[&str]) -> Vec<String> {
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .filter(|n| !keep.contains(&n.as_str()))
         .collect()
+}
+
+/// A two-part EXR whose second part's data window (8×4) differs from the first's (16×8).
+pub fn mismatched_parts(path: &Path) {
+    let spec = |name, w: usize, h: usize| OutputSpec {
+        part_name: name,
+        info: SubimageInfo {
+            x: 0,
+            y: 0,
+            width: w,
+            height: h,
+            full_x: 0,
+            full_y: 0,
+            // OpenEXR wants one display window for all parts; the data windows differ.
+            full_width: 16,
+            full_height: 8,
+            nchannels: 1,
+            tile_height: 0,
+            deep: false,
+        },
+        channels: vec![("Y", SampleFormat::Float)],
+        compression: "zip",
+        attributes: &[],
+    };
+    let mut out = Output::create(path, &[spec("full", 16, 8), spec("half", 8, 4)]).unwrap();
+    out.write_rows(0, 8, &[0.5; 16 * 8]).unwrap();
+    out.next_part().unwrap();
+    out.write_rows(0, 4, &[0.5; 8 * 4]).unwrap();
+    out.close().unwrap();
+}
+
+/// Bytes no image reader accepts.
+pub fn garbage(path: &Path) {
+    std::fs::write(path, (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect::<Vec<_>>()).unwrap();
 }
