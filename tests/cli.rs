@@ -90,3 +90,127 @@ fn info_on_the_checked_in_example_and_the_cycles_dev_set_reports_all_inputs() {
     assert!(out.status.success(), "{stdout}{}", text(&out.stderr));
     assert_eq!(stdout.matches("verdict     complete").count(), files.len(), "{stdout}");
 }
+
+#[test]
+fn render_writes_complete_frames_and_a_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = kpcn(&[
+        "render",
+        "--family",
+        "cornell",
+        "--seed",
+        "1",
+        "--spp",
+        "4,16",
+        "--reference-spp",
+        "32",
+        "--resolution",
+        "32x18",
+        "-q",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let files: Vec<String> = ["cornell-0001-00004spp.exr", "cornell-0001-00016spp.exr", "cornell-0001-ref.exr"]
+        .iter()
+        .map(|f| dir.path().join(f).display().to_string())
+        .collect();
+    let info = kpcn(&[&["info"], &files.iter().map(String::as_str).collect::<Vec<_>>()[..]].concat());
+    let stdout = text(&info.stdout);
+    assert!(info.status.success(), "{stdout}{}", text(&info.stderr));
+    assert_eq!(stdout.matches("verdict     complete").count(), 3, "{stdout}");
+    assert!(stdout.contains("visibility  present"), "{stdout}");
+    // --no-clobber refuses to overwrite.
+    let again = kpcn(&[
+        "render",
+        "--family",
+        "cornell",
+        "--seed",
+        "1",
+        "--spp",
+        "4",
+        "--resolution",
+        "32x18",
+        "-q",
+        "--no-clobber",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_eq!(again.status.code(), Some(1));
+    assert!(text(&again.stderr).contains("--no-clobber"), "{}", text(&again.stderr));
+}
+
+#[test]
+fn render_reads_scene_files_and_explains_their_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = kpcn(&["scenes", "--example"]);
+    assert!(example.status.success());
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(&scene, &example.stdout).unwrap();
+    let out = kpcn(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--resolution",
+        "8x8",
+        "-q",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    // Undeclare `glossy` but use a metal: a clear error.
+    let broken = text(&example.stdout).replace("\"glossy\", ", "").replace(", \"glossy\"", "");
+    let broken = broken.replace("type = \"diffuse\"", "type = \"conductor\"\ncolor = [0.9, 0.9, 0.9]");
+    std::fs::write(&scene, broken).unwrap();
+    let out = kpcn(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--resolution",
+        "8x8",
+        "-q",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("needs the `glossy` effect"), "{}", text(&out.stderr));
+    let out = kpcn(&["render", "--spp", "1", "--family", "dof", "-o", dir.path().to_str().unwrap()]);
+    assert!(text(&out.stderr).contains("at least 2"), "{}", text(&out.stderr));
+}
+
+#[test]
+fn scenes_lists_eight_families_and_dataset_writes_a_manifest() {
+    let out = kpcn(&["scenes"]);
+    assert!(out.status.success());
+    let listed = text(&out.stdout).lines().filter(|l| l.contains("effects of seed 0")).count();
+    assert_eq!(listed, 8, "{}", text(&out.stdout));
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = kpcn(&[
+        "dataset",
+        "--families",
+        "glass,dof",
+        "--count",
+        "2",
+        "--spp",
+        "2,4",
+        "--reference-spp",
+        "8",
+        "--resolution",
+        "16x9",
+        "-q",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let manifest = std::fs::read_to_string(dir.path().join("manifest.csv")).unwrap();
+    let rows: Vec<&str> = manifest.lines().collect();
+    assert_eq!(rows.len(), 1 + 2 * 2 * 2, "{manifest}");
+    for row in &rows[1..] {
+        let cols: Vec<&str> = row.split(',').collect();
+        assert!(dir.path().join(cols[5]).is_file(), "{row}");
+        assert!(dir.path().join(cols[6]).is_file(), "{row}");
+    }
+}

@@ -6,3 +6,4 @@ mod cli;
 mod io_errors;
 mod io_roundtrip;
 mod layout_files;
+mod sim;

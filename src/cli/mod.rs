@@ -2,6 +2,7 @@
 //! library.
 
 mod info;
+mod render;
 
 use clap::{Parser, Subcommand};
 
@@ -32,12 +33,28 @@ pub enum Command {
     /// Exits with status 1 when a file cannot be read or lacks inputs the network needs, so
     /// it can gate a pipeline step.
     Info(info::InfoArgs),
+    /// Render a scene with the simulator into layered EXRs: noisy frames at several sample
+    /// counts from one run, and optionally an independent high-sample reference.
+    ///
+    /// Files are named `<scene>-<spp, 5 digits>spp.exr` and `<scene>-ref.exr`.
+    #[command(
+        after_help = "Examples:\n  kpcn render --family cornell --seed 1 --spp 4,16,64 --reference-spp 1024 --resolution 320x180 -o out/\n  kpcn scenes --example > my.toml && kpcn render my.toml -o out/"
+    )]
+    Render(render::RenderArgs),
+    /// List the simulator's scene families, or print one permutation as a scene file.
+    Scenes(render::ScenesArgs),
+    /// Render a training/test set: N permutations of each family, noisy frames and
+    /// references, with a manifest.csv.
+    Dataset(render::DatasetArgs),
 }
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Render(args) => render::run_render(&args),
+        Command::Scenes(args) => render::run_scenes(&args),
+        Command::Dataset(args) => render::run_dataset(&args),
     }
 }
 
