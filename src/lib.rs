@@ -6,5 +6,6 @@
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod features;
 pub mod io;
 pub mod sim;

@@ -147,33 +147,26 @@ fn render_reads_scene_files_and_explains_their_errors() {
     assert!(example.status.success());
     let scene = dir.path().join("scene.toml");
     std::fs::write(&scene, &example.stdout).unwrap();
-    let out = kpcn(&[
-        "render",
-        scene.to_str().unwrap(),
-        "--spp",
-        "2",
-        "--resolution",
-        "8x8",
-        "-q",
-        "-o",
-        dir.path().to_str().unwrap(),
-    ]);
+    let render = || {
+        kpcn(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            "2",
+            "--resolution",
+            "8x8",
+            "-q",
+            "-o",
+            dir.path().to_str().unwrap(),
+        ])
+    };
+    let out = render();
     assert!(out.status.success(), "{}", text(&out.stderr));
     // Undeclare `glossy` but use a metal: a clear error.
     let broken = text(&example.stdout).replace("\"glossy\", ", "").replace(", \"glossy\"", "");
     let broken = broken.replace("type = \"diffuse\"", "type = \"conductor\"\ncolor = [0.9, 0.9, 0.9]");
     std::fs::write(&scene, broken).unwrap();
-    let out = kpcn(&[
-        "render",
-        scene.to_str().unwrap(),
-        "--spp",
-        "2",
-        "--resolution",
-        "8x8",
-        "-q",
-        "-o",
-        dir.path().to_str().unwrap(),
-    ]);
+    let out = render();
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("needs the `glossy` effect"), "{}", text(&out.stderr));
     let out = kpcn(&["render", "--spp", "1", "--family", "dof", "-o", dir.path().to_str().unwrap()]);
