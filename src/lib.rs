@@ -6,6 +6,10 @@
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod denoise;
 pub mod features;
 pub mod io;
+pub mod kernel;
+pub mod model;
 pub mod sim;
+pub mod tile;

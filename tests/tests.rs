@@ -3,6 +3,7 @@
 mod util;
 
 mod cli;
+mod denoise;
 mod io_errors;
 mod io_roundtrip;
 mod layout_files;

@@ -1,8 +1,11 @@
 //! The `kpcn` command line: argument definitions and the commands, thin shells over the
 //! library.
 
+mod denoise;
 mod info;
+mod model;
 mod render;
+mod sequence;
 
 use clap::{Parser, Subcommand};
 
@@ -33,6 +36,15 @@ pub enum Command {
     /// Exits with status 1 when a file cannot be read or lacks inputs the network needs, so
     /// it can gate a pipeline step.
     Info(info::InfoArgs),
+    /// Denoise a layered EXR or an image sequence, adding a denoised layer to a copy of each
+    /// input (every channel and all metadata kept; written atomically).
+    ///
+    /// The embedded default model is UNTRAINED until the trainer ships one: output is not yet
+    /// a useful denoise.
+    #[command(
+        after_help = "Examples:\n  kpcn denoise frame.exr -o frame.denoised.exr\n  kpcn denoise shot/render.####.exr -o out/render.####.exr --frames 1001-1100 --aovs\n  kpcn denoise render.%04d.exr -o den.%04d.exr -n"
+    )]
+    Denoise(denoise::DenoiseArgs),
     /// Render a scene with the simulator into layered EXRs: noisy frames at several sample
     /// counts from one run, and optionally an independent high-sample reference.
     ///
@@ -46,15 +58,19 @@ pub enum Command {
     /// Render a training/test set: N permutations of each family, noisy frames and
     /// references, with a manifest.csv.
     Dataset(render::DatasetArgs),
+    /// Inspect model files or write an untrained one.
+    Model(model::ModelArgs),
 }
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Denoise(args) => denoise::run(&args),
         Command::Render(args) => render::run_render(&args),
         Command::Scenes(args) => render::run_scenes(&args),
         Command::Dataset(args) => render::run_dataset(&args),
+        Command::Model(args) => model::run(&args),
     }
 }
 

@@ -17,19 +17,55 @@ pub const INPUT_LAYOUT: &str = "kpcn27-v1";
 /// render values, low enough that products and squares of inputs stay finite in f32.
 pub const MAX_MAGNITUDE: f32 = 1e15;
 
-/// Network inputs of one frame (CHW planes, `width * height` each).
+/// Which network branch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Branch {
+    /// Demodulated diffuse.
+    Diffuse,
+    /// Log specular.
+    Specular,
+}
+
+/// A frame's preprocessed buffers (whole frame, sanitised), from which branch inputs of any
+/// region are extracted. Gradients are computed on demand from whole-frame values, so a
+/// tile's input equals the same region of the untiled input exactly.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Features {
     /// Width.
     pub width: usize,
     /// Height.
     pub height: usize,
-    /// 27 planes for the diffuse branch.
-    pub diffuse: Vec<Vec<f32>>,
-    /// 27 planes for the specular branch.
-    pub specular: Vec<Vec<f32>>,
-    /// The noisy albedo (sanitised), for recomposition.
+    /// d̃ = diffuse / (albedo + ε).
+    pub d_tilde: [Vec<f32>; 3],
+    /// s̃ = ln(1 + max(specular, 0)).
+    pub s_tilde: [Vec<f32>; 3],
+    /// Shading normal.
+    pub normal: [Vec<f32>; 3],
+    /// Albedo, clamped ≥ 0 (also used for recomposition).
     pub albedo: [Vec<f32>; 3],
+    /// Depth / the frame's largest finite depth.
+    pub depth: Vec<f32>,
+    /// Variance of d̃.
+    pub d_variance: Vec<f32>,
+    /// Variance of s̃ (delta method).
+    pub s_variance: Vec<f32>,
+    /// Variance of the normal.
+    pub normal_variance: Vec<f32>,
+    /// Variance of the albedo.
+    pub albedo_variance: Vec<f32>,
+    /// Variance of the normalised depth.
+    pub depth_variance: Vec<f32>,
+}
+
+/// Reflects an index into `0..n` (mirror without repeating the edge; folds again for
+/// indices further out than `n`, so tiny frames work).
+pub fn reflect(i: isize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let period = 2 * (n as isize - 1);
+    let m = i.rem_euclid(period);
+    (if m < n as isize { m } else { period - m }) as usize
 }
 
 /// NaN and ±Inf become 0 (never float max: it poisons squares); then a magnitude clamp.
@@ -52,20 +88,19 @@ fn clean_variance(p: &[f32]) -> Vec<f32> {
 
 /// Backward differences `I[x] − I[x−1]` (0 in the first column) and `I[y] − I[y−1]`.
 pub fn gradients(p: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut gx = vec![0f32; w * h];
-    let mut gy = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            if x > 0 {
-                gx[i] = p[i] - p[i - 1];
-            }
-            if y > 0 {
-                gy[i] = p[i] - p[i - w];
-            }
-        }
-    }
+    let gx = (0..w * h).map(|i| grad_at(p, w, i % w, i / w, true)).collect();
+    let gy = (0..w * h).map(|i| grad_at(p, w, i % w, i / w, false)).collect();
     (gx, gy)
+}
+
+fn grad_at(p: &[f32], w: usize, x: usize, y: usize, along_x: bool) -> f32 {
+    let i = y * w + x;
+    let g = match (along_x, x, y) {
+        (true, 0, _) | (false, _, 0) => 0.0,
+        (true, ..) => p[i] - p[i - 1],
+        (false, ..) => p[i] - p[i - w],
+    };
+    sanitize(g)
 }
 
 /// Demodulated diffuse `diffuse / (albedo + ε)`.
@@ -85,65 +120,109 @@ impl Features {
         let n = w * h;
         // Reflectance is never negative; clamping also keeps albedo + ε away from 0.
         let albedo = clean3(&k.albedo).map(|p| p.into_iter().map(|a| a.max(0.0)).collect::<Vec<f32>>());
-        let normal = clean3(&k.normal);
         let diffuse = clean3(&k.diffuse);
         let specular = clean3(&k.specular);
 
         // Depth: non-finite → 0, ≥ 0, divided by the frame's largest finite depth.
         let depth_raw = clean(&k.depth);
         let max_depth = depth_raw.iter().fold(0f32, |m, &d| m.max(d));
-        let scale = if max_depth > 0.0 { 1.0 / max_depth } else { 0.0 };
-        let depth: Vec<f32> = depth_raw.iter().map(|&d| d.max(0.0) * scale).collect();
-        let depth_variance: Vec<f32> = clean_variance(&k.depth_variance)
-            .iter()
-            .map(|&v| sanitize((v as f64 * (scale as f64).powi(2)) as f32))
-            .collect();
+        let scale = if max_depth > 0.0 { 1.0 / max_depth as f64 } else { 0.0 };
+        let depth = depth_raw.iter().map(|&d| (d.max(0.0) as f64 * scale) as f32).collect();
+        let depth_variance =
+            clean_variance(&k.depth_variance).iter().map(|&v| sanitize((v as f64 * scale * scale) as f32)).collect();
 
-        let d_tilde: [Vec<f32>; 3] = std::array::from_fn(|c| demodulate(&diffuse[c], &albedo[c]));
-        let s_tilde: [Vec<f32>; 3] = std::array::from_fn(|c| log_specular(&specular[c]));
         let d_var = clean_variance(&k.diffuse_variance);
         let s_var = clean_variance(&k.specular_variance);
         // Variance divisions in f64, results sanitised back to the f32 range.
-        let d_var_tilde: Vec<f32> = (0..n)
+        let d_variance = (0..n)
             .map(|i| {
                 let a = (albedo[0][i] + albedo[1][i] + albedo[2][i]) as f64 / 3.0 + EPSILON as f64;
                 sanitize((d_var[i] as f64 / (a * a)) as f32)
             })
             .collect();
         // Delta method for ln(1 + s): σ² / (1 + s)², with the mean of (1 + s) over RGB.
-        let s_var_tilde: Vec<f32> = (0..n)
+        let s_variance = (0..n)
             .map(|i| {
                 let m = 1.0 + (0..3).map(|c| specular[c][i].max(0.0) as f64).sum::<f64>() / 3.0;
                 sanitize((s_var[i] as f64 / (m * m)) as f32)
             })
             .collect();
-
-        let aux_variances = [clean_variance(&k.normal_variance), clean_variance(&k.albedo_variance), depth_variance];
-        let branch = |c_tilde: &[Vec<f32>; 3], c_var: Vec<f32>| -> Vec<Vec<f32>> {
-            let guides: Vec<&[f32]> = c_tilde
-                .iter()
-                .chain(&normal)
-                .chain(&albedo)
-                .map(Vec::as_slice)
-                .chain(std::iter::once(depth.as_slice()))
-                .collect();
-            let (gx, gy): (Vec<Vec<f32>>, Vec<Vec<f32>>) =
-                guides.iter().map(|g| gradients(g, w, h)).map(|(x, y)| (clean(&x), clean(&y))).unzip();
-            let mut planes: Vec<Vec<f32>> = c_tilde.to_vec();
-            planes.extend(gx);
-            planes.extend(gy);
-            planes.push(c_var);
-            planes.extend(aux_variances.iter().cloned());
-            debug_assert_eq!(planes.len(), INPUT_CHANNELS);
-            planes
-        };
         Features {
             width: w,
             height: h,
-            diffuse: branch(&d_tilde, d_var_tilde),
-            specular: branch(&s_tilde, s_var_tilde),
+            d_tilde: std::array::from_fn(|c| clean(&demodulate(&diffuse[c], &albedo[c]))),
+            s_tilde: std::array::from_fn(|c| log_specular(&specular[c])),
+            normal: clean3(&k.normal),
             albedo,
+            depth,
+            d_variance,
+            s_variance,
+            normal_variance: clean_variance(&k.normal_variance),
+            albedo_variance: clean_variance(&k.albedo_variance),
+            depth_variance,
         }
+    }
+
+    /// The branch's noisy colour c̃ (d̃ or s̃).
+    pub fn colour(&self, b: Branch) -> &[Vec<f32>; 3] {
+        match b {
+            Branch::Diffuse => &self.d_tilde,
+            Branch::Specular => &self.s_tilde,
+        }
+    }
+
+    /// Planes of region (`x0`, `y0`, `w`×`h`) — which may extend past the frame, reflected —
+    /// as CHW, one plane per source.
+    pub fn region(&self, planes: &[&[f32]], x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(planes.len() * w * h);
+        for p in planes {
+            for y in 0..h {
+                let fy = reflect(y0 + y as isize, self.height);
+                out.extend((0..w).map(|x| p[fy * self.width + reflect(x0 + x as isize, self.width)]));
+            }
+        }
+        out
+    }
+
+    /// The 27-channel input of branch `b` over a region (CHW, reflected past the frame).
+    pub fn branch_input(&self, b: Branch, x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
+        let c = self.colour(b);
+        let guides: [&[f32]; 10] = [
+            &c[0],
+            &c[1],
+            &c[2],
+            &self.normal[0],
+            &self.normal[1],
+            &self.normal[2],
+            &self.albedo[0],
+            &self.albedo[1],
+            &self.albedo[2],
+            &self.depth,
+        ];
+        let var = match b {
+            Branch::Diffuse => &self.d_variance,
+            Branch::Specular => &self.s_variance,
+        };
+        let mut out = self.region(&guides[..3], x0, y0, w, h);
+        for along_x in [true, false] {
+            for g in guides {
+                for y in 0..h {
+                    let fy = reflect(y0 + y as isize, self.height);
+                    out.extend(
+                        (0..w).map(|x| grad_at(g, self.width, reflect(x0 + x as isize, self.width), fy, along_x)),
+                    );
+                }
+            }
+        }
+        out.extend(self.region(
+            &[var, &self.normal_variance, &self.albedo_variance, &self.depth_variance],
+            x0,
+            y0,
+            w,
+            h,
+        ));
+        debug_assert_eq!(out.len(), INPUT_CHANNELS * w * h);
+        out
     }
 }
 
@@ -176,7 +255,7 @@ mod tests {
     fn preprocessing_matches_hand_computed_values() {
         // A constant frame: every value is its hand-computed transform, gradients are 0.
         let f = Features::new(&inputs(3, 2, |_| 0.0));
-        let d = &f.diffuse;
+        let d = planes(&f, Branch::Diffuse);
         assert_eq!(d.len(), INPUT_CHANNELS);
         assert!((d[0][4] - 0.1 / (0.5 + EPSILON)).abs() < 1e-6);
         assert!((d[2][4] - 0.3 / (0.5 + EPSILON)).abs() < 1e-6);
@@ -187,11 +266,41 @@ mod tests {
         assert_eq!(d[25][0], 0.001);
         // Depth 1 everywhere normalises to 1; its variance 0.5 to 0.5 / 1².
         assert_eq!(d[26][0], 0.5);
-        let s = &f.specular;
+        let s = planes(&f, Branch::Specular);
         assert!((s[1][0] - 1.5f32.ln()).abs() < 1e-6);
         assert!((s[2][0] - 2f32.ln()).abs() < 1e-6);
         let m = 1.0 + (0.0 + 0.5 + 1.0) / 3.0;
         assert!((s[23][0] - (0.04 / (m * m)) as f32).abs() < 1e-6);
+    }
+
+    /// The whole frame's input as 27 planes.
+    fn planes(f: &Features, b: Branch) -> Vec<Vec<f32>> {
+        let n = f.width * f.height;
+        f.branch_input(b, 0, 0, f.width, f.height).chunks(n).map(<[f32]>::to_vec).collect()
+    }
+
+    #[test]
+    fn regions_past_the_border_are_reflected() {
+        assert_eq!((-3..6).map(|i| reflect(i, 3)).collect::<Vec<_>>(), [1, 2, 1, 0, 1, 2, 1, 0, 1]);
+        assert_eq!(reflect(-5, 1), 0);
+        let f = Features::new(&inputs(3, 1, |i| i as f32));
+        let r = f.region(&[&f.depth], -2, 0, 7, 1);
+        let d = &f.depth;
+        assert_eq!(r, [d[2], d[1], d[0], d[1], d[2], d[1], d[0]]);
+    }
+
+    #[test]
+    fn a_region_equals_the_same_part_of_the_whole_input() {
+        let f = Features::new(&inputs(7, 5, |i| ((i * 7919) % 13) as f32 * 0.1));
+        let whole = planes(&f, Branch::Specular);
+        let part = f.branch_input(Branch::Specular, 2, 1, 4, 3);
+        for (c, plane) in whole.iter().enumerate() {
+            for y in 0..3 {
+                for x in 0..4 {
+                    assert_eq!(part[c * 12 + y * 4 + x], plane[(y + 1) * 7 + x + 2], "channel {c}");
+                }
+            }
+        }
     }
 
     #[test]
@@ -209,7 +318,7 @@ mod tests {
         k.depth = vec![2.0, f32::INFINITY, f32::NAN, 8.0];
         let f = Features::new(&k);
         // Guides: c̃ 3, normal 3, albedo 3, depth → Gx of depth is plane 3 + 9.
-        let gx_depth = &f.diffuse[12];
+        let gx_depth = &planes(&f, Branch::Diffuse)[12];
         assert_eq!(gx_depth, &vec![0.0, -0.25, 0.0, 1.0]);
     }
 
@@ -220,7 +329,7 @@ mod tests {
         k.albedo[0] = vec![0.0, -1.0, f32::MAX, 0.0];
         k.diffuse_variance = vec![f32::INFINITY, 1e38, -5.0, f32::NAN];
         let f = Features::new(&k);
-        for p in f.diffuse.iter().chain(&f.specular) {
+        for p in planes(&f, Branch::Diffuse).iter().chain(&planes(&f, Branch::Specular)) {
             assert!(p.iter().all(|v| v.is_finite()), "{p:?}");
         }
     }

@@ -1,0 +1,197 @@
+//! `kpcn denoise`: files and image sequences, a thin shell over `Denoiser`.
+
+use super::sequence::{Pattern, parse_frames};
+use crate::denoise::{Denoiser, Options, Progress};
+use crate::io::layout::{Layout, Mapping, Quantity};
+use crate::io::{Attribute, FrameBuffers, SampleFormat, WriteOptions};
+use crate::model::Model;
+use anyhow::{Context, bail};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+
+/// Arguments of `kpcn denoise`.
+#[derive(Debug, Args)]
+pub struct DenoiseArgs {
+    /// Input EXR, or a sequence pattern: render.####.exr, render.@@@.exr, render.%04d.exr.
+    #[arg(value_name = "IN")]
+    pub input: String,
+    /// Output EXR (a pattern when IN is one). Holds a copy of the input plus the new layer.
+    #[arg(short, long, value_name = "OUT")]
+    pub output: String,
+    /// Frames of a sequence: 1-100, 1-100x5, 1,3,5 (default: every frame whose file exists).
+    #[arg(long, value_name = "LIST")]
+    pub frames: Option<String>,
+    /// Name of the denoised layer (`NAME.R/G/B`).
+    #[arg(long, default_value = "denoised", value_name = "NAME")]
+    pub layer: String,
+    /// `default` (embedded), `paper`, `small` (untrained presets) or a .safetensors file.
+    #[arg(long, default_value = "default", value_name = "MODEL")]
+    pub model: String,
+    /// Also write NAME_diffuse and NAME_specular layers; they add up to NAME exactly.
+    #[arg(long)]
+    pub aovs: bool,
+    /// Write only the new layers (and the metadata), not a copy of every input channel.
+    #[arg(long)]
+    pub separate: bool,
+    /// Channel naming convention; detected when omitted.
+    #[arg(long, value_name = "native|cycles|renderman", value_parser = clap::value_parser!(super::info::LayoutArg))]
+    pub layout: Option<super::info::LayoutArg>,
+    /// Keep going past frames that fail, and report them at the end (exit status stays 1).
+    #[arg(long)]
+    pub skip_bad_frames: bool,
+    /// Print what would be done, do nothing.
+    #[arg(short = 'n', long)]
+    pub dry_run: bool,
+    /// Refuse to overwrite existing outputs.
+    #[arg(long)]
+    pub no_clobber: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// Working-memory budget per tile in MB; bigger means fewer, larger tiles.
+    #[arg(long, default_value_t = 512, value_name = "MB")]
+    pub max_memory: usize,
+    /// No progress bar or notes, errors only.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Per-frame details (layout, estimated variances, tiles, seconds).
+    #[arg(short, long)]
+    pub verbose: bool,
+}
+
+/// The (input, output) pairs to process.
+fn jobs(args: &DenoiseArgs) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
+    match (Pattern::parse(&args.input), Pattern::parse(&args.output)) {
+        (None, None) => Ok(vec![(args.input.clone().into(), args.output.clone().into())]),
+        (Some(_), None) => {
+            bail!("{}: the input is a sequence but the output has no frame field — use e.g. out.####.exr", args.output)
+        }
+        (None, Some(_)) => bail!("{}: the output is a sequence but the input is one file", args.output),
+        (Some(i), Some(o)) => {
+            let frames = match &args.frames {
+                Some(spec) => parse_frames(spec).map_err(anyhow::Error::msg)?,
+                None => i.existing_frames(),
+            };
+            if frames.is_empty() {
+                bail!("{}: no frames found — check the pattern or give --frames", args.input);
+            }
+            Ok(frames.into_iter().map(|f| (i.path(f), o.path(f))).collect())
+        }
+    }
+}
+
+/// Runs `kpcn denoise`.
+pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
+    let jobs = jobs(args)?;
+    if args.dry_run {
+        for (i, o) in &jobs {
+            let note = if i.exists() { "" } else { "  (input missing)" };
+            println!("{} -> {}{note}", i.display(), o.display());
+        }
+        return Ok(());
+    }
+    let model = Model::resolve(&args.model)?;
+    if model.is_untrained() && !args.quiet {
+        eprintln!(
+            "kpcn: warning: model `{}` is UNTRAINED ({}): the result is not a useful denoise until a trained model ships",
+            args.model, model.description
+        );
+    }
+    let denoiser = Denoiser::new(
+        model,
+        Options { threads: args.threads, max_memory_mb: args.max_memory.max(16), tile_size: None },
+    )?;
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(jobs.len() as u64 * 1000) };
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {percent:>3}% ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let mut failed = Vec::new();
+    let mut warned = false;
+    for (k, (input, output)) in jobs.iter().enumerate() {
+        bar.set_message(format!("frame {}/{}", k + 1, jobs.len()));
+        let step = |p: Progress| {
+            bar.set_position(k as u64 * 1000 + (1000 * p.done / p.total.max(1)) as u64);
+            true
+        };
+        match denoise_file(&denoiser, args, input, output, &step, &mut warned, &bar) {
+            Ok(()) => {}
+            Err(e) if args.skip_bad_frames => {
+                bar.suspend(|| eprintln!("kpcn: error: {e:#} (skipped)"));
+                failed.push(input.clone());
+            }
+            Err(e) => {
+                bar.finish_and_clear();
+                return Err(e);
+            }
+        }
+    }
+    bar.finish_and_clear();
+    if !failed.is_empty() {
+        let list: Vec<String> = failed.iter().map(|p| p.display().to_string()).collect();
+        bail!("{} of {} frames failed: {}", failed.len(), jobs.len(), list.join(", "));
+    }
+    if !args.quiet && jobs.len() > 1 {
+        println!("{} frames denoised", jobs.len());
+    }
+    Ok(())
+}
+
+fn denoise_file(
+    denoiser: &Denoiser,
+    args: &DenoiseArgs,
+    input: &Path,
+    output: &Path,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+    warned: &mut bool,
+    bar: &ProgressBar,
+) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    let fb = FrameBuffers::read(input)?;
+    let mapping = Mapping::for_frame(&fb, args.layout.map(|l| l.0));
+    let estimated: Vec<String> = Quantity::ALL
+        .iter()
+        .map(|&q| mapping.entry_for(q))
+        .filter(|e| e.quantity.required() && e.variance_status() == "estimated")
+        .map(|e| format!("{} ({})", e.quantity.name(), e.variance_description()))
+        .collect();
+    if !estimated.is_empty() && !args.quiet && (args.verbose || !*warned) {
+        bar.suspend(|| {
+            eprintln!(
+                "kpcn: warning: {}: no variance for {} — estimated: {}",
+                input.display(),
+                estimated.len(),
+                estimated.join("; ")
+            )
+        });
+        *warned = true;
+    }
+    let inputs = mapping.extract(&fb)?;
+    let d = denoiser.denoise(&inputs, progress).with_context(|| format!("{}: denoising failed", input.display()))?;
+
+    let mut out = if args.separate { fb.select(&[])? } else { fb };
+    out.insert_rgb(&args.layer, SampleFormat::Float, d.color)?;
+    if args.aovs {
+        out.insert_rgb(&format!("{}_diffuse", args.layer), SampleFormat::Float, d.diffuse)?;
+        out.insert_rgb(&format!("{}_specular", args.layer), SampleFormat::Float, d.specular)?;
+    }
+    out.set_attribute(Attribute::string("kpcn:model", &denoiser.model().description));
+    out.set_attribute(Attribute::string("kpcn:layout", mapping.layout.name()));
+    out.write(output, &WriteOptions { compression: None, no_clobber: args.no_clobber })?;
+    if args.verbose {
+        let (w, h) = (out.width(), out.height());
+        let tile = denoiser.tile_size(w, h);
+        bar.suspend(|| {
+            println!(
+                "{} -> {} ({w}x{h}, layout {}, tiles {tile}px, {:.2} s)",
+                input.display(),
+                output.display(),
+                Layout::name(mapping.layout),
+                t.elapsed().as_secs_f64()
+            )
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,102 @@
+//! `kpcn model`: inspect model files and create initial (untrained) ones.
+
+use crate::model::{Architecture, Kind, Model};
+use anyhow::Context;
+use clap::{Args, Subcommand, ValueEnum};
+use std::path::PathBuf;
+
+/// Arguments of `kpcn model`.
+#[derive(Debug, Args)]
+pub struct ModelArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: ModelAction,
+}
+
+/// `kpcn model` actions.
+#[derive(Debug, Subcommand)]
+pub enum ModelAction {
+    /// Describe a model: `default`, a preset or a .safetensors file.
+    Info {
+        /// Model name or file.
+        #[arg(default_value = "default")]
+        model: String,
+    },
+    /// Write an untrained, Xavier-initialised model of a preset architecture.
+    Init {
+        /// Architecture.
+        #[arg(long, value_enum, default_value_t = Preset::Small)]
+        preset: Preset,
+        /// Kernel prediction or direct prediction.
+        #[arg(long, value_enum, default_value_t = KindArg::Kpcn)]
+        kind: KindArg,
+        /// Initialisation seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output file (.safetensors).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+}
+
+/// Architecture presets.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum Preset {
+    /// 9 layers × 100 channels, 5×5, 21×21 kernels (Bako et al. 2017).
+    Paper,
+    /// 6 layers × 32 channels, 3×3, 11×11 kernels.
+    Small,
+}
+
+/// Network kinds.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum KindArg {
+    /// Kernel prediction.
+    Kpcn,
+    /// Direct prediction.
+    Dpcn,
+}
+
+/// Prints what a model is.
+pub fn describe(m: &Model) {
+    let a = &m.arch;
+    println!(
+        "  architecture  {:?}: {} layers × {} channels, {}×{} convolutions",
+        a.kind, a.layers, a.channels, a.conv_size, a.conv_size
+    );
+    if a.kind == Kind::Kpcn {
+        println!("  kernels       {}×{}", a.kernel_size, a.kernel_size);
+    }
+    println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
+    println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);
+    println!("  description   {}", m.description);
+    if m.is_untrained() {
+        println!("  WARNING       this model is UNTRAINED: its output is not a useful denoise");
+    }
+}
+
+/// Runs `kpcn model`.
+pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
+    match &args.action {
+        ModelAction::Info { model } => {
+            let m = Model::resolve(model)?;
+            println!("{model}");
+            describe(&m);
+        }
+        ModelAction::Init { preset, kind, seed, output } => {
+            let kind = match kind {
+                KindArg::Kpcn => Kind::Kpcn,
+                KindArg::Dpcn => Kind::Dpcn,
+            };
+            let arch = match preset {
+                Preset::Paper => Architecture::paper(kind),
+                Preset::Small => Architecture::small(kind),
+            };
+            let m = Model::xavier(arch, *seed)?;
+            m.save(output).with_context(|| format!("{}: cannot write the model", output.display()))?;
+            println!("{}", output.display());
+            describe(&m);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,175 @@
+//! The public pipeline: `Denoiser::new(model, options)` and `denoise(&inputs, progress)`.
+//!
+//! frame → features → per tile: network (+ kernels) per branch → recomposition
+//! `(albedo + ε) ⊙ d̂ + exp(ŝ) − 1`. Safe to share between threads (`&self`); the work runs
+//! in the denoiser's own rayon pool, so a host application's pool is left alone.
+
+use crate::features::{Branch, EPSILON, Features, INPUT_CHANNELS, sanitize};
+use crate::io::layout::KpcnInputs;
+use crate::kernel;
+use crate::model::{Kind, Model, ModelError};
+use crate::tile::{self, Tile};
+use candle_core::{Device, Tensor};
+
+/// ŝ is clamped below this before `exp` so the specular output stays finite.
+const MAX_LOG_SPECULAR: f32 = 80.0;
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Worker threads (default: all cores).
+    pub threads: Option<usize>,
+    /// Working-memory budget for one tile's network evaluation, in MB.
+    pub max_memory_mb: usize,
+    /// Force a tile side (testing; normally derived from the budget).
+    pub tile_size: Option<usize>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { threads: None, max_memory_mb: 512, tile_size: None }
+    }
+}
+
+/// Progress: tiles done of total.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Progress {
+    /// Tiles finished.
+    pub done: usize,
+    /// Tiles in the frame.
+    pub total: usize,
+}
+
+/// Errors of a denoise call.
+#[derive(Debug, thiserror::Error)]
+pub enum DenoiseError {
+    /// The network failed.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// The progress callback asked to stop.
+    #[error("cancelled")]
+    Cancelled,
+    /// The thread pool could not start.
+    #[error("cannot start {0} worker threads")]
+    Threads(usize),
+    /// An empty frame.
+    #[error("the frame is empty (0 pixels)")]
+    Empty,
+}
+
+/// A denoised frame: colour and the two components it is the exact sum of.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Denoised {
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+    /// Denoised beauty = diffuse + specular.
+    pub color: [Vec<f32>; 3],
+    /// Denoised diffuse, `(albedo + ε) ⊙ d̂`.
+    pub diffuse: [Vec<f32>; 3],
+    /// Denoised specular, `exp(ŝ) − 1`.
+    pub specular: [Vec<f32>; 3],
+}
+
+/// A model plus how to run it.
+pub struct Denoiser {
+    model: Model,
+    options: Options,
+    pool: rayon::ThreadPool,
+}
+
+impl Denoiser {
+    /// A denoiser running `model`.
+    pub fn new(model: Model, options: Options) -> Result<Denoiser, DenoiseError> {
+        let mut b = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("kpcn-{i}"));
+        if let Some(n) = options.threads {
+            b = b.num_threads(n.max(1));
+        }
+        let pool = b.build().map_err(|_| DenoiseError::Threads(options.threads.unwrap_or(0)))?;
+        Ok(Denoiser { model, options, pool })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// The tile side used for a `width`×`height` frame.
+    pub fn tile_size(&self, width: usize, height: usize) -> usize {
+        self.options
+            .tile_size
+            .unwrap_or_else(|| tile::size_for_budget(&self.model.arch, self.options.max_memory_mb << 20, width, height))
+    }
+
+    /// Denoises one frame. `progress` is called after every tile; returning `false` cancels.
+    pub fn denoise(
+        &self,
+        inputs: &KpcnInputs,
+        progress: &(dyn Fn(Progress) -> bool + Sync),
+    ) -> Result<Denoised, DenoiseError> {
+        let (w, h) = (inputs.width, inputs.height);
+        if w == 0 || h == 0 {
+            return Err(DenoiseError::Empty);
+        }
+        self.pool.install(|| {
+            let f = Features::new(inputs);
+            let tiles = tile::plan(w, h, self.tile_size(w, h));
+            let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
+            let mut s_hat = d_hat.clone();
+            for (i, t) in tiles.iter().enumerate() {
+                let d = self.branch(&f, Branch::Diffuse, t)?;
+                let s = self.branch(&f, Branch::Specular, t)?;
+                for c in 0..3 {
+                    for y in 0..t.h {
+                        let at = (t.y + y) * w + t.x;
+                        d_hat[c][at..at + t.w].copy_from_slice(&d[c][y * t.w..(y + 1) * t.w]);
+                        s_hat[c][at..at + t.w].copy_from_slice(&s[c][y * t.w..(y + 1) * t.w]);
+                    }
+                }
+                if !progress(Progress { done: i + 1, total: tiles.len() }) {
+                    return Err(DenoiseError::Cancelled);
+                }
+            }
+            Ok(recompose(&f.albedo, &d_hat, &s_hat, w, h))
+        })
+    }
+
+    /// One branch on one tile: d̂ or ŝ for the tile's pixels.
+    fn branch(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
+        let arch = &self.model.arch;
+        let (rf, rk) = (arch.feature_radius() as isize, arch.kernel_radius() as isize);
+        let (iw, ih) = (t.w + 2 * rf as usize, t.h + 2 * rf as usize);
+        let x = f.branch_input(b, t.x as isize - rf, t.y as isize - rf, iw, ih);
+        let x = Tensor::from_vec(x, (1, INPUT_CHANNELS, ih, iw), &Device::Cpu).map_err(ModelError::from)?;
+        let weights = match b {
+            Branch::Diffuse => &self.model.diffuse,
+            Branch::Specular => &self.model.specular,
+        };
+        let out = weights.forward(&x)?.flatten_all().and_then(|o| o.to_vec1::<f32>()).map_err(ModelError::from)?;
+        let n = t.w * t.h;
+        Ok(match arch.kind {
+            Kind::Dpcn => [0, 1, 2].map(|c| out[c * n..(c + 1) * n].to_vec()),
+            Kind::Kpcn => {
+                let (nw, nh) = (t.w + 2 * rk as usize, t.h + 2 * rk as usize);
+                let colour = f.colour(b);
+                let region =
+                    f.region(&[&colour[0], &colour[1], &colour[2]], t.x as isize - rk, t.y as isize - rk, nw, nh);
+                let m = nw * nh;
+                let noisy = [0, 1, 2].map(|c| region[c * m..(c + 1) * m].to_vec());
+                kernel::apply(&out, &noisy, arch.kernel_size, t.w, t.h)
+            }
+        })
+    }
+}
+
+/// `(albedo + ε) ⊙ d̂` and `exp(ŝ) − 1`, and their sum, all finite.
+fn recompose(albedo: &[Vec<f32>; 3], d_hat: &[Vec<f32>; 3], s_hat: &[Vec<f32>; 3], w: usize, h: usize) -> Denoised {
+    let diffuse: [Vec<f32>; 3] =
+        std::array::from_fn(|c| d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d)).collect());
+    let specular: [Vec<f32>; 3] = std::array::from_fn(|c| {
+        s_hat[c].iter().map(|&s| sanitize(sanitize(s).min(MAX_LOG_SPECULAR).exp_m1())).collect()
+    });
+    let color = std::array::from_fn(|c| diffuse[c].iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
+    Denoised { width: w, height: h, color, diffuse, specular }
+}

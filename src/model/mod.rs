@@ -1,0 +1,403 @@
+//! KPCN and DPCN networks in candle, their architectures, and model files.
+//!
+//! A branch is `layers` convolutions (`conv_size`², `channels` wide, ReLU after all but the
+//! last, no padding: each layer trims `(conv_size − 1) / 2` pixels per side, so a tile is
+//! fed with a halo of [`Architecture::feature_radius`]). KPCN's last layer predicts
+//! `kernel_size²` weights per pixel, DPCN's 3 colours.
+
+use crate::features::{INPUT_CHANNELS, INPUT_LAYOUT};
+use candle_core::{DType, Device, Tensor};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Model file format version written in the metadata.
+pub const FORMAT_VERSION: &str = "1";
+
+/// The embedded default model (see `models/README.md`).
+static DEFAULT_MODEL: &[u8] = include_bytes!("../../models/default.safetensors");
+
+/// Kernel prediction or direct prediction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Per-pixel softmax kernels applied to the noisy input (Bako et al. 2017).
+    Kpcn,
+    /// The colour predicted directly.
+    Dpcn,
+}
+
+/// A network's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Architecture {
+    /// KPCN or DPCN.
+    pub kind: Kind,
+    /// Convolution layers per branch.
+    pub layers: usize,
+    /// Width of the hidden layers.
+    pub channels: usize,
+    /// Convolution size (odd).
+    pub conv_size: usize,
+    /// Predicted kernel size (odd; KPCN only).
+    pub kernel_size: usize,
+}
+
+/// Errors loading, saving or running models.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// File system.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Not a kpcn model file, or one of another layout or version.
+    #[error("{origin}: {what} — use a model written by this kpcn (`kpcn denoise --model paper|small|FILE`)")]
+    Format {
+        /// File or preset name.
+        origin: String,
+        /// What is wrong.
+        what: String,
+    },
+    /// Unknown preset name.
+    #[error("unknown model `{0}` — use `paper`, `small`, `default` or a .safetensors file")]
+    UnknownPreset(String),
+    /// A tensor computation failed.
+    #[error("network evaluation failed: {0}")]
+    Candle(#[from] candle_core::Error),
+}
+
+impl Architecture {
+    /// The paper's configuration: 9 layers, 100 channels, 5×5 convolutions, 21×21 kernels.
+    pub fn paper(kind: Kind) -> Self {
+        Architecture { kind, layers: 9, channels: 100, conv_size: 5, kernel_size: 21 }
+    }
+
+    /// A small flat network: 6 layers, 32 channels, 3×3 convolutions, 11×11 kernels.
+    pub fn small(kind: Kind) -> Self {
+        Architecture { kind, layers: 6, channels: 32, conv_size: 3, kernel_size: 11 }
+    }
+
+    /// Outputs of the last layer.
+    pub fn outputs(&self) -> usize {
+        match self.kind {
+            Kind::Kpcn => self.kernel_size * self.kernel_size,
+            Kind::Dpcn => 3,
+        }
+    }
+
+    /// Pixels of context each side that the convolutions need.
+    pub fn feature_radius(&self) -> usize {
+        self.layers * (self.conv_size - 1) / 2
+    }
+
+    /// Pixels of noisy colour each side that the predicted kernel reads (0 for DPCN).
+    pub fn kernel_radius(&self) -> usize {
+        match self.kind {
+            Kind::Kpcn => (self.kernel_size - 1) / 2,
+            Kind::Dpcn => 0,
+        }
+    }
+
+    /// (out, in) channels of layer `l`.
+    pub fn layer_channels(&self, l: usize) -> (usize, usize) {
+        let cin = if l == 0 { INPUT_CHANNELS } else { self.channels };
+        let cout = if l + 1 == self.layers { self.outputs() } else { self.channels };
+        (cout, cin)
+    }
+
+    /// Multiply-adds ×2 per pixel, both branches, network and kernel application.
+    pub fn flops_per_pixel(&self) -> f64 {
+        let k2 = (self.conv_size * self.conv_size) as f64;
+        let net: f64 = (0..self.layers).map(|l| self.layer_channels(l)).map(|(o, i)| 2.0 * (o * i) as f64 * k2).sum();
+        let kernel = if self.kind == Kind::Kpcn { 2.0 * 3.0 * self.outputs() as f64 } else { 0.0 };
+        2.0 * (net + kernel)
+    }
+
+    fn validate(&self, origin: &str) -> Result<(), ModelError> {
+        let bad = |what: String| Err(ModelError::Format { origin: origin.into(), what });
+        if self.layers == 0 || self.channels == 0 || self.conv_size % 2 == 0 || self.kernel_size % 2 == 0 {
+            return bad(format!("impossible architecture {self:?}"));
+        }
+        Ok(())
+    }
+
+    fn metadata(&self) -> HashMap<String, String> {
+        let kind = match self.kind {
+            Kind::Kpcn => "kpcn",
+            Kind::Dpcn => "dpcn",
+        };
+        [
+            ("kpcn:format", FORMAT_VERSION.to_string()),
+            ("kpcn:input_layout", INPUT_LAYOUT.to_string()),
+            ("kpcn:kind", kind.to_string()),
+            ("kpcn:layers", self.layers.to_string()),
+            ("kpcn:channels", self.channels.to_string()),
+            ("kpcn:conv_size", self.conv_size.to_string()),
+            ("kpcn:kernel_size", self.kernel_size.to_string()),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+    }
+
+    fn from_metadata(m: &HashMap<String, String>, origin: &str) -> Result<Self, ModelError> {
+        let err = |what: String| ModelError::Format { origin: origin.into(), what };
+        let get = |k: &str| m.get(k).ok_or_else(|| err(format!("metadata lacks `{k}` (not a kpcn model file?)")));
+        let version = get("kpcn:format")?;
+        if version != FORMAT_VERSION {
+            return Err(err(format!("model format {version}, this kpcn reads format {FORMAT_VERSION}")));
+        }
+        let layout = get("kpcn:input_layout")?;
+        if layout != INPUT_LAYOUT {
+            return Err(err(format!("input layout `{layout}`, this kpcn feeds `{INPUT_LAYOUT}`")));
+        }
+        let num = |k: &str| -> Result<usize, ModelError> {
+            get(k)?.parse().map_err(|_| err(format!("metadata `{k}` is not a number")))
+        };
+        let kind = match get("kpcn:kind")?.as_str() {
+            "kpcn" => Kind::Kpcn,
+            "dpcn" => Kind::Dpcn,
+            other => return Err(err(format!("unknown network kind `{other}`"))),
+        };
+        let a = Architecture {
+            kind,
+            layers: num("kpcn:layers")?,
+            channels: num("kpcn:channels")?,
+            conv_size: num("kpcn:conv_size")?,
+            kernel_size: num("kpcn:kernel_size")?,
+        };
+        a.validate(origin)?;
+        Ok(a)
+    }
+}
+
+/// One branch's weights: per layer (weight `[out, in, k, k]`, bias `[out]`).
+#[derive(Debug, Clone)]
+pub struct BranchWeights {
+    /// Layers.
+    pub layers: Vec<(Tensor, Tensor)>,
+}
+
+impl BranchWeights {
+    /// Evaluates the branch on a `[1, 27, h + 2r, w + 2r]` input; returns `[1, out, h, w]`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor, ModelError> {
+        let mut x = x.clone();
+        let n = self.layers.len();
+        for (l, (w, b)) in self.layers.iter().enumerate() {
+            let cout = b.dims1()?;
+            x = x.conv2d(w, 0, 1, 1, 1)?.broadcast_add(&b.reshape((1, cout, 1, 1))?)?;
+            if l + 1 < n {
+                x = x.relu()?;
+            }
+        }
+        Ok(x)
+    }
+}
+
+/// A two-branch model.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// Its shape.
+    pub arch: Architecture,
+    /// Diffuse branch.
+    pub diffuse: BranchWeights,
+    /// Specular branch.
+    pub specular: BranchWeights,
+    /// Free-text description (e.g. what it was trained on, or "untrained").
+    pub description: String,
+}
+
+/// A small deterministic generator for weight initialisation (SplitMix64).
+struct InitRng(u64);
+
+impl InitRng {
+    fn uniform(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+impl Model {
+    /// Xavier-uniform weights, zero biases, from `seed`: an untrained model.
+    pub fn xavier(arch: Architecture, seed: u64) -> Result<Model, ModelError> {
+        arch.validate("xavier")?;
+        let mut rng = InitRng(seed);
+        let k = arch.conv_size;
+        let mut branch = || -> Result<BranchWeights, ModelError> {
+            let layers = (0..arch.layers)
+                .map(|l| {
+                    let (o, i) = arch.layer_channels(l);
+                    let a = (6.0 / ((i + o) * k * k) as f32).sqrt();
+                    let w: Vec<f32> = (0..o * i * k * k).map(|_| (2.0 * rng.uniform() - 1.0) * a).collect();
+                    Ok((Tensor::from_vec(w, (o, i, k, k), &Device::Cpu)?, Tensor::zeros(o, DType::F32, &Device::Cpu)?))
+                })
+                .collect::<Result<_, ModelError>>()?;
+            Ok(BranchWeights { layers })
+        };
+        let diffuse = branch()?;
+        let specular = branch()?;
+        Ok(Model { arch, diffuse, specular, description: format!("untrained (Xavier-uniform, seed {seed})") })
+    }
+
+    /// Whether the description marks it untrained.
+    pub fn is_untrained(&self) -> bool {
+        self.description.starts_with("untrained")
+    }
+
+    /// The model shipped inside the library.
+    pub fn embedded_default() -> Result<Model, ModelError> {
+        Self::from_bytes(DEFAULT_MODEL, "embedded default model")
+    }
+
+    /// `default`, a preset name (`paper`, `small`: untrained, Xavier seed 0) or a file path.
+    pub fn resolve(name: &str) -> Result<Model, ModelError> {
+        match name {
+            "default" => Self::embedded_default(),
+            "paper" => Self::xavier(Architecture::paper(Kind::Kpcn), 0),
+            "small" => Self::xavier(Architecture::small(Kind::Kpcn), 0),
+            "paper-dpcn" => Self::xavier(Architecture::paper(Kind::Dpcn), 0),
+            "small-dpcn" => Self::xavier(Architecture::small(Kind::Dpcn), 0),
+            p if p.ends_with(".safetensors") => Self::load(Path::new(p)),
+            other => Err(ModelError::UnknownPreset(other.into())),
+        }
+    }
+
+    /// Reads a model file.
+    pub fn load(path: &Path) -> Result<Model, ModelError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        Self::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Parses model-file bytes (`origin` names them in errors).
+    pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Model, ModelError> {
+        let err = |what: String| ModelError::Format { origin: origin.into(), what };
+        let (_, meta) =
+            safetensors::SafeTensors::read_metadata(bytes).map_err(|e| err(format!("not a safetensors file ({e})")))?;
+        let meta = meta.metadata().clone().unwrap_or_default();
+        let arch = Architecture::from_metadata(&meta, origin)?;
+        let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)?;
+        let k = arch.conv_size;
+        let branch = |name: &str| -> Result<BranchWeights, ModelError> {
+            let layers = (0..arch.layers)
+                .map(|l| {
+                    let (o, i) = arch.layer_channels(l);
+                    let get = |t: &str, shape: &[usize]| -> Result<Tensor, ModelError> {
+                        let key = format!("{name}.{l}.{t}");
+                        let v = tensors.get(&key).ok_or_else(|| err(format!("tensor `{key}` is missing")))?;
+                        if v.dims() != shape {
+                            return Err(err(format!("tensor `{key}` has shape {:?}, expected {shape:?}", v.dims())));
+                        }
+                        Ok(v.to_dtype(DType::F32)?)
+                    };
+                    Ok((get("weight", &[o, i, k, k])?, get("bias", &[o])?))
+                })
+                .collect::<Result<_, ModelError>>()?;
+            Ok(BranchWeights { layers })
+        };
+        Ok(Model {
+            arch,
+            diffuse: branch("diffuse")?,
+            specular: branch("specular")?,
+            description: meta.get("kpcn:description").cloned().unwrap_or_default(),
+        })
+    }
+
+    /// Serialises the model with its metadata.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, ModelError> {
+        let mut meta = self.arch.metadata();
+        meta.insert("kpcn:description".into(), self.description.clone());
+        let mut named = Vec::new();
+        for (name, b) in [("diffuse", &self.diffuse), ("specular", &self.specular)] {
+            for (l, (w, bias)) in b.layers.iter().enumerate() {
+                named.push((format!("{name}.{l}.weight"), w.clone()));
+                named.push((format!("{name}.{l}.bias"), bias.clone()));
+            }
+        }
+        let views: Vec<(String, candle_core::Tensor)> = named;
+        safetensors::serialize(views.iter().map(|(n, t)| (n.as_str(), t)), Some(meta))
+            .map_err(|e| ModelError::Format { origin: "serialise".into(), what: e.to_string() })
+    }
+
+    /// Writes the model file (through a temporary file, renamed into place).
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        let bytes = self.to_bytes()?;
+        let tmp = path.with_extension("safetensors.tmp");
+        let io = |source| ModelError::Io { path: path.into(), source };
+        std::fs::write(&tmp, bytes).map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_network_matches_a_hand_computed_convolution() {
+        // One 3×3 layer, 27 → 3 (DPCN), weights 1 on input channel 0 only, bias 0.5.
+        let arch = Architecture { kind: Kind::Dpcn, layers: 1, channels: 3, conv_size: 3, kernel_size: 1 };
+        let mut w = vec![0f32; 3 * 27 * 9];
+        for o in 0..3 {
+            for t in 0..9 {
+                w[o * 27 * 9 + t] = (o + 1) as f32;
+            }
+        }
+        let layer =
+            (Tensor::from_vec(w, (3, 27, 3, 3), &Device::Cpu).unwrap(), Tensor::full(0.5f32, 3, &Device::Cpu).unwrap());
+        let m = Model {
+            arch,
+            diffuse: BranchWeights { layers: vec![layer.clone()] },
+            specular: BranchWeights { layers: vec![layer] },
+            description: String::new(),
+        };
+        // Input 4×4 with channel 0 = x + 4y, other channels noise that must not matter... except
+        // that weights on them are 0.
+        let mut x = vec![0f32; 27 * 16];
+        for i in 0..16 {
+            x[i] = i as f32;
+            x[16 + i] = 100.0;
+        }
+        let t = Tensor::from_vec(x, (1, 27, 4, 4), &Device::Cpu).unwrap();
+        let out = m.diffuse.forward(&t).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        // Valid 3×3 box sums of the ramp at output (0,0): pixels (0..3, 0..3) → sum = 9·5 = 45.
+        let sums = [45.0f32, 54.0, 81.0, 90.0];
+        for o in 0..3 {
+            for (p, s) in sums.iter().enumerate() {
+                assert_eq!(out[o * 4 + p], (o + 1) as f32 * s + 0.5);
+            }
+        }
+    }
+
+    #[test]
+    fn model_files_round_trip_and_refuse_other_layouts() {
+        let m =
+            Model::xavier(Architecture { kind: Kind::Kpcn, layers: 2, channels: 4, conv_size: 3, kernel_size: 3 }, 7)
+                .unwrap();
+        let bytes = m.to_bytes().unwrap();
+        let back = Model::from_bytes(&bytes, "mem").unwrap();
+        assert_eq!(back.arch, m.arch);
+        assert_eq!(back.description, m.description);
+        let a = m.diffuse.layers[1].0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let b = back.diffuse.layers[1].0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert_eq!(a, b);
+
+        let mut meta = m.arch.metadata();
+        meta.insert("kpcn:input_layout".into(), "kpcn28-2019".into());
+        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+        let other = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
+        let e = Model::from_bytes(&other, "old.safetensors").unwrap_err().to_string();
+        assert!(e.contains("input layout `kpcn28-2019`"), "{e}");
+        let e = Model::from_bytes(b"not a model", "junk.safetensors").unwrap_err().to_string();
+        assert!(e.contains("junk.safetensors: not a safetensors file"), "{e}");
+    }
+
+    #[test]
+    fn the_embedded_default_loads() {
+        let m = Model::embedded_default().unwrap();
+        assert_eq!(m.arch, Architecture::small(Kind::Kpcn));
+    }
+}

@@ -1,0 +1,280 @@
+//! The denoiser's contract: finite on hostile input, convex kernels, tiled == untiled,
+//! thread-count independence, a golden image, and the `kpcn denoise` command.
+
+use crate::util::{Rng, cycles_dev, native_frame, write};
+use kpcn::denoise::{Denoised, Denoiser, Options};
+use kpcn::features::{EPSILON, Features, reflect};
+use kpcn::io::layout::{KpcnInputs, Mapping};
+use kpcn::io::{FrameBuffers, SampleFormat, WriteOptions};
+use kpcn::model::{Architecture, Kind, Model};
+use proptest::prelude::*;
+use std::path::Path;
+use std::process::Command;
+
+/// A tiny network (fast in tests) with the paper's 21×21 kernels.
+fn tiny(kind: Kind, kernel: usize) -> Model {
+    Model::xavier(Architecture { kind, layers: 3, channels: 6, conv_size: 3, kernel_size: kernel }, 3).unwrap()
+}
+
+fn run(model: Model, k: &KpcnInputs, tile: Option<usize>, threads: usize) -> Denoised {
+    let d = Denoiser::new(model, Options { threads: Some(threads), max_memory_mb: 64, tile_size: tile }).unwrap();
+    d.denoise(k, &|_| true).unwrap()
+}
+
+/// Random inputs; `hostile` mixes in NaN, ±Inf, negatives, 1e30 fireflies, zero albedo.
+fn frame(w: usize, h: usize, seed: u64, hostile: bool) -> KpcnInputs {
+    let mut rng = Rng(seed);
+    let mut plane = |scale: f32| -> Vec<f32> {
+        (0..w * h)
+            .map(|_| {
+                let u = rng.uniform();
+                if hostile {
+                    match (u * 20.0) as u32 {
+                        0 => f32::NAN,
+                        1 => f32::INFINITY,
+                        2 => f32::NEG_INFINITY,
+                        3 => 1e30,
+                        4 => -3.0,
+                        5 => 0.0,
+                        6 => f32::MAX,
+                        _ => u * scale,
+                    }
+                } else {
+                    u * scale
+                }
+            })
+            .collect()
+    };
+    let mut rgb = |s: f32| [plane(s), plane(s), plane(s)];
+    KpcnInputs {
+        width: w,
+        height: h,
+        color: rgb(2.0),
+        diffuse: rgb(2.0),
+        specular: rgb(1.0),
+        albedo: rgb(1.0),
+        normal: rgb(1.0),
+        depth: plane(10.0),
+        visibility: None,
+        color_variance: plane(0.1),
+        diffuse_variance: plane(0.1),
+        specular_variance: plane(0.1),
+        albedo_variance: plane(0.01),
+        normal_variance: plane(0.01),
+        depth_variance: plane(0.1),
+    }
+}
+
+fn all_finite(d: &Denoised) -> bool {
+    d.color.iter().chain(&d.diffuse).chain(&d.specular).all(|p| p.iter().all(|v| v.is_finite()))
+}
+
+fn max_rel_diff(a: &Denoised, b: &Denoised) -> f32 {
+    let mut m = 0f32;
+    for (x, y) in a.color.iter().flatten().zip(b.color.iter().flatten()) {
+        m = m.max((x - y).abs() / (1.0 + x.abs().max(y.abs())));
+    }
+    m
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    #[test]
+    fn nan_inf_and_fireflies_give_finite_output(
+        w in 1usize..20, h in 1usize..12, seed in 0u64..10_000, dpcn in any::<bool>()
+    ) {
+        let kind = if dpcn { Kind::Dpcn } else { Kind::Kpcn };
+        let d = run(tiny(kind, 5), &frame(w, h, seed, true), None, 2);
+        prop_assert!(all_finite(&d));
+    }
+
+    #[test]
+    fn tiled_equals_untiled(w in 1usize..40, h in 1usize..30, tile in 1usize..24, seed in 0u64..10_000) {
+        let k = frame(w, h, seed, false);
+        let whole = run(tiny(Kind::Kpcn, 5), &k, Some(1024), 1);
+        let tiled = run(tiny(Kind::Kpcn, 5), &k, Some(tile), 1);
+        // Convolutions over regions of different sizes may sum in another order.
+        prop_assert!(max_rel_diff(&whole, &tiled) < 1e-5, "{}", max_rel_diff(&whole, &tiled));
+    }
+}
+
+#[test]
+fn constant_black_and_single_pixel_frames_are_finite() {
+    for (w, h) in [(1, 1), (1, 9), (9, 1), (16, 16)] {
+        let mut k = frame(w, h, 1, false);
+        for p in k.color.iter_mut().chain(&mut k.diffuse).chain(&mut k.specular).chain(&mut k.albedo) {
+            p.fill(0.0);
+        }
+        let d = run(tiny(Kind::Kpcn, 21), &k, None, 1);
+        assert!(all_finite(&d));
+        // Black in, black out: every kernel mixes zeros.
+        assert!(d.color.iter().flatten().all(|&v| v == 0.0), "{w}x{h}");
+    }
+}
+
+#[test]
+fn kpcn_output_lies_within_the_neighbourhood_range() {
+    let (w, h, kern) = (23, 17, 21);
+    let mut k = frame(w, h, 5, false);
+    // Constant albedo, so d̂ = diffuse / (a + ε) is recoverable from the output.
+    for p in &mut k.albedo {
+        p.fill(0.5);
+    }
+    let d = run(tiny(Kind::Kpcn, kern), &k, Some(8), 2);
+    let f = Features::new(&k);
+    let r = (kern / 2) as isize;
+    for c in 0..3 {
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let nb = (-r..=r)
+                    .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+                    .map(|(dx, dy)| f.d_tilde[c][reflect(y + dy, h) * w + reflect(x + dx, w)]);
+                let (lo, hi) = nb.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+                let d_hat = d.diffuse[c][y as usize * w + x as usize] / (0.5 + EPSILON);
+                assert!(d_hat >= lo - 1e-5 && d_hat <= hi + 1e-5, "{d_hat} outside [{lo}, {hi}] at {x},{y}");
+            }
+        }
+    }
+}
+
+#[test]
+fn one_thread_equals_many_threads() {
+    let k = frame(40, 24, 9, false);
+    let a = run(tiny(Kind::Kpcn, 11), &k, Some(16), 1);
+    let b = run(tiny(Kind::Kpcn, 11), &k, Some(16), 2);
+    assert!(max_rel_diff(&a, &b) < 1e-6, "{}", max_rel_diff(&a, &b));
+}
+
+#[test]
+fn aovs_add_up_to_the_beauty_exactly() {
+    let d = run(tiny(Kind::Kpcn, 5), &frame(12, 9, 3, false), None, 1);
+    for c in 0..3 {
+        for i in 0..12 * 9 {
+            assert_eq!(d.color[c][i], d.diffuse[c][i] + d.specular[c][i]);
+        }
+    }
+}
+
+#[test]
+fn progress_can_cancel() {
+    let d = Denoiser::new(tiny(Kind::Kpcn, 5), Options { tile_size: Some(4), ..Default::default() }).unwrap();
+    let calls = std::sync::atomic::AtomicUsize::new(0);
+    let r = d.denoise(&frame(16, 16, 1, false), &|p| {
+        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        p.done < 3
+    });
+    assert!(matches!(r, Err(kpcn::denoise::DenoiseError::Cancelled)));
+    assert_eq!(calls.into_inner(), 3);
+}
+
+/// Golden image: a 48×32 crop of the Cycles example through the `small` preset (Xavier seed
+/// 0, fixed in code). Regenerate with `KPCN_BLESS=1 cargo test golden`; a mismatch writes
+/// `target/golden-actual.exr` beside the expected file's name for inspection.
+#[test]
+fn golden_small_preset_on_a_cycles_crop() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
+    let input = FrameBuffers::read(&dir.join("spheres-48x32-input.exr")).unwrap();
+    let k = Mapping::for_frame(&input, None).extract(&input).unwrap();
+    let d = run(Model::resolve("small").unwrap(), &k, None, 2);
+    let mut out = FrameBuffers::new(d.width, d.height);
+    out.insert_rgb("denoised", SampleFormat::Float, d.color).unwrap();
+    let expected_path = dir.join("spheres-48x32-small.exr");
+    if std::env::var_os("KPCN_BLESS").is_some() {
+        out.write(&expected_path, &WriteOptions::default()).unwrap();
+        return;
+    }
+    let expected = FrameBuffers::read(&expected_path).expect("golden file (regenerate with KPCN_BLESS=1)");
+    let mut worst = 0f32;
+    for c in ["denoised.R", "denoised.G", "denoised.B"] {
+        for (a, b) in out.channel(c).unwrap().iter().zip(expected.channel(c).unwrap()) {
+            worst = worst.max((a - b).abs() / (1e-3 + b.abs()));
+        }
+    }
+    if worst > 1e-4 {
+        let actual = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/golden-actual.exr");
+        out.write(&actual, &WriteOptions::default()).unwrap();
+        panic!("golden mismatch: worst relative error {worst}; actual written to {}", actual.display());
+    }
+}
+
+fn kpcn(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_kpcn")).args(args).output().unwrap()
+}
+
+#[test]
+fn denoise_keeps_every_input_channel_and_adds_the_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut inputs = vec![write(&native_frame(24, 16, 1, &[]), dir.path(), "in.exr")];
+    if let Some(dev) = cycles_dev() {
+        inputs.push(dev.join("interior-00004spp.exr"));
+    }
+    for input in inputs {
+        let out = dir.path().join("out.exr");
+        let r = kpcn(&[
+            "denoise",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--aovs",
+            "-q",
+            "--model",
+            "small",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let a = FrameBuffers::read(&input).unwrap();
+        let b = FrameBuffers::read(&out).unwrap();
+        for p in a.planes() {
+            assert_eq!(b.channel(&p.name), Some(p.data.as_slice()), "{} kept", p.name);
+        }
+        assert_eq!(b.planes().len(), a.planes().len() + 9);
+        assert!(b.channel("denoised_specular.G").is_some());
+        assert!(b.attribute("kpcn:model").unwrap().contains("untrained"));
+    }
+}
+
+#[test]
+fn denoise_runs_a_sequence_and_reports_bad_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in 1..=5 {
+        write(&native_frame(16, 12, f, &[]), dir.path(), &format!("render.{f:04}.exr"));
+    }
+    let pattern = dir.path().join("render.####.exr");
+    let out = dir.path().join("den.%04d.exr");
+    let (i, o) = (pattern.to_str().unwrap(), out.to_str().unwrap());
+    let dry = kpcn(&["denoise", i, "-o", o, "-n"]);
+    assert_eq!(String::from_utf8_lossy(&dry.stdout).lines().count(), 5);
+    assert!(!dir.path().join("den.0001.exr").exists(), "a dry run writes nothing");
+
+    let r = kpcn(&["denoise", i, "-o", o, "-q"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    for f in 1..=5 {
+        assert!(dir.path().join(format!("den.{f:04}.exr")).is_file());
+    }
+    // Frame 3 corrupt: fail fast stops there; --skip-bad-frames goes on and reports it.
+    std::fs::write(dir.path().join("render.0003.exr"), b"garbage").unwrap();
+    let o2 = dir.path().join("two.@@@@.exr");
+    let r = kpcn(&["denoise", i, "-o", o2.to_str().unwrap(), "--frames", "1-5", "-q"]);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("render.0003.exr"));
+    assert!(!dir.path().join("two.0004.exr").exists(), "fail fast");
+    let r = kpcn(&["denoise", i, "-o", o2.to_str().unwrap(), "--frames", "1-5x2", "--skip-bad-frames", "-q"]);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("1 of 3 frames failed"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert!(dir.path().join("two.0005.exr").is_file());
+}
+
+#[test]
+fn denoise_warns_about_untrained_models_and_estimated_variance() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(8, 8, 2, &["diffuseVariance", "diffuseA"]), dir.path(), "in.exr");
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", dir.path().join("o.exr").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{err}");
+    assert!(err.contains("UNTRAINED"), "{err}");
+    assert!(err.contains("diffuse (spatially"), "{err}");
+}
