@@ -278,3 +278,61 @@ fn denoise_warns_about_untrained_models_and_estimated_variance() {
     assert!(err.contains("UNTRAINED"), "{err}");
     assert!(err.contains("diffuse (spatially"), "{err}");
 }
+
+#[test]
+fn a_denoiser_is_shared_between_threads() {
+    fn send_sync<T: Send + Sync>(_: &T) {}
+    let d = Denoiser::new(tiny(Kind::Kpcn, 5), Options { threads: Some(1), ..Default::default() }).unwrap();
+    send_sync(&d);
+    let k = frame(10, 6, 4, false);
+    let (a, b) = std::thread::scope(|s| {
+        let a = s.spawn(|| d.denoise(&k, &|_| true).unwrap());
+        let b = s.spawn(|| d.denoise(&k, &|_| true).unwrap());
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    assert_eq!(a, b);
+}
+
+#[test]
+fn strided_host_buffers_denoise_like_planes() {
+    use kpcn::io::{ImageView, InputViews};
+    let k = frame(9, 7, 6, false);
+    // Interleave into RGBA rows padded by 5 floats, as a host might hold them.
+    let (w, h) = (9, 7);
+    let rgba = |p: &[Vec<f32>; 3]| -> Vec<f32> {
+        let mut v = vec![-1.0; h * (w * 4 + 5)];
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    v[y * (w * 4 + 5) + x * 4 + c] = p[c][y * w + x];
+                }
+            }
+        }
+        v
+    };
+    fn view(v: &[f32], w: usize, h: usize) -> ImageView<'_> {
+        ImageView { data: v, width: w, height: h, channels: 3, pixel_stride: 4, row_stride: w * 4 + 5 }
+    }
+    fn plane(p: &[f32], w: usize, h: usize) -> ImageView<'_> {
+        ImageView::packed(p, w, h, 1)
+    }
+    let (c, d, s, a, n) = (rgba(&k.color), rgba(&k.diffuse), rgba(&k.specular), rgba(&k.albedo), rgba(&k.normal));
+    let views = InputViews {
+        color: Some(view(&c, w, h)),
+        diffuse: view(&d, w, h),
+        specular: Some(view(&s, w, h)),
+        albedo: view(&a, w, h),
+        normal: view(&n, w, h),
+        depth: plane(&k.depth, w, h),
+        diffuse_variance: Some(plane(&k.diffuse_variance, w, h)),
+        specular_variance: Some(plane(&k.specular_variance, w, h)),
+        albedo_variance: Some(plane(&k.albedo_variance, w, h)),
+        normal_variance: Some(plane(&k.normal_variance, w, h)),
+        depth_variance: Some(plane(&k.depth_variance, w, h)),
+    };
+    let from_views = KpcnInputs::from_views(&views).unwrap();
+    assert_eq!(from_views.diffuse, k.diffuse);
+    let a = run(tiny(Kind::Kpcn, 5), &from_views, None, 1);
+    let b = run(tiny(Kind::Kpcn, 5), &k, None, 1);
+    assert_eq!(a.color, b.color);
+}

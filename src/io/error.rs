@@ -103,6 +103,14 @@ pub enum IoError {
         /// What to do.
         hint: String,
     },
+    /// An in-memory image handed to the denoiser does not fit.
+    #[error("<memory>: image `{name}` {msg} — pass images of the frame's size with valid strides")]
+    BadImage {
+        /// Which image.
+        name: String,
+        /// What is wrong.
+        msg: String,
+    },
     /// An unknown compression name.
     #[error("unknown EXR compression `{0}` — use one of none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab")]
     Compression(String),

@@ -6,9 +6,11 @@ mod ffi;
 mod frame;
 pub mod layout;
 mod oiio;
+mod view;
 mod write;
 
 pub use error::IoError;
 pub use frame::{FrameBuffers, Plane, Window};
 pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
+pub use view::{ImageView, InputViews};
 pub use write::{COMPRESSIONS, Part, WriteOptions};

@@ -35,7 +35,7 @@ impl Camera {
         }
     }
 
-    /// The ray through film position (`sx`, `sy`) in [0,1]² (y down); `lens` is sampled
+    /// The ray through film position (`sx`, `sy`) in `[0, 1]²` (y down); `lens` is sampled
     /// only for a thin lens.
     pub fn ray(&self, sx: f32, sy: f32, lens: Option<[f32; 2]>) -> Ray {
         let x = (2.0 * sx - 1.0) * self.tan_half_fov * self.aspect;
