@@ -7,6 +7,7 @@
 
 pub mod cli;
 pub mod denoise;
+pub mod eval;
 pub mod features;
 pub mod io;
 pub mod kernel;

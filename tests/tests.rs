@@ -4,6 +4,7 @@ mod util;
 
 mod cli;
 mod denoise;
+mod eval;
 mod io_errors;
 mod io_roundtrip;
 mod layout_files;

@@ -2,6 +2,7 @@
 //! library.
 
 mod denoise;
+mod eval;
 mod info;
 mod model;
 mod render;
@@ -45,6 +46,12 @@ pub enum Command {
         after_help = "Examples:\n  kpcn denoise frame.exr -o frame.denoised.exr\n  kpcn denoise shot/render.####.exr -o out/render.####.exr --frames 1001-1100 --aovs\n  kpcn denoise render.%04d.exr -o den.%04d.exr -n"
     )]
     Denoise(denoise::DenoiseArgs),
+    /// Score images against a reference: relMSE, PSNR and 1 − SSIM (tonemapped as the team's
+    /// Cycles baseline), per file and averaged; optional false-colour error maps.
+    #[command(
+        after_help = "Examples:\n  kpcn eval --reference shot-ref.exr shot-00016spp.exr shot.den.exr\n  kpcn eval -r ref.exr den.exr --format json --error-maps maps/"
+    )]
+    Eval(eval::EvalArgs),
     /// Render a scene with the simulator into layered EXRs: noisy frames at several sample
     /// counts from one run, and optionally an independent high-sample reference.
     ///
@@ -67,6 +74,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Denoise(args) => denoise::run(&args),
+        Command::Eval(args) => eval::run(&args),
         Command::Render(args) => render::run_render(&args),
         Command::Scenes(args) => render::run_scenes(&args),
         Command::Dataset(args) => render::run_dataset(&args),

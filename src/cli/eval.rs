@@ -1,0 +1,139 @@
+//! `kpcn eval`: error of images against a reference.
+
+use crate::eval::{Metrics, false_colour, metrics, relmse_map};
+use crate::io::FrameBuffers;
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
+
+/// Arguments of `kpcn eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// The reference (its root `R,G,B` are compared against).
+    #[arg(long, short, value_name = "REF.exr")]
+    pub reference: PathBuf,
+    /// Images to score.
+    #[arg(required = true, value_name = "IN.exr")]
+    pub inputs: Vec<PathBuf>,
+    /// Layer of the inputs to score: `auto` (`denoised` if present, else root `R,G,B`),
+    /// `rgb` for the root, or a layer name.
+    #[arg(long, default_value = "auto", value_name = "LAYER")]
+    pub channels: String,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Table)]
+    pub format: Format,
+    /// Write a false-colour per-pixel relMSE map (PNG) per input into this folder.
+    #[arg(long, value_name = "DIR")]
+    pub error_maps: Option<PathBuf>,
+}
+
+/// Output formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// Aligned columns.
+    Table,
+    /// One JSON document.
+    Json,
+    /// Comma-separated values with a header.
+    Csv,
+}
+
+fn rgb_names(fb: &FrameBuffers, layer: &str) -> anyhow::Result<[String; 3]> {
+    let layer = match layer {
+        "auto" if fb.channel("denoised.R").is_some() => "denoised",
+        "auto" | "rgb" => "",
+        l => l,
+    };
+    let names = ["R", "G", "B"].map(|c| if layer.is_empty() { c.to_string() } else { format!("{layer}.{c}") });
+    for n in &names {
+        if fb.channel(n).is_none() {
+            bail!(
+                "{}: no channel `{n}` — pick the layer with --channels (`kpcn info` lists them)",
+                fb.display_path().display()
+            );
+        }
+    }
+    Ok(names)
+}
+
+fn planes<'a>(fb: &'a FrameBuffers, names: &[String; 3]) -> [&'a [f32]; 3] {
+    [0, 1, 2].map(|c| fb.channel(&names[c]).expect("checked by rgb_names"))
+}
+
+fn write_map(path: &Path, map: &[f32], w: usize, h: usize) -> anyhow::Result<()> {
+    let file = std::fs::File::create(path).with_context(|| format!("{}: cannot create", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let pixels: Vec<u8> = map.iter().flat_map(|&e| false_colour(e)).collect();
+    enc.write_header()
+        .and_then(|mut wr| wr.write_image_data(&pixels))
+        .with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// Runs `kpcn eval`.
+pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+    let reference = FrameBuffers::read(&args.reference)?;
+    let ref_names = rgb_names(&reference, "rgb")?;
+    let y = planes(&reference, &ref_names);
+    let (w, h) = (reference.width(), reference.height());
+    let mut rows: Vec<(String, String, Metrics)> = Vec::new();
+    for input in &args.inputs {
+        let fb = FrameBuffers::read(input)?;
+        if (fb.width(), fb.height()) != (w, h) {
+            bail!(
+                "{}: is {}x{} but the reference {} is {w}x{h} — compare images of one size",
+                input.display(),
+                fb.width(),
+                fb.height(),
+                args.reference.display()
+            );
+        }
+        let names = rgb_names(&fb, &args.channels)?;
+        let x = planes(&fb, &names);
+        if let Some(dir) = &args.error_maps {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+            let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            write_map(&dir.join(format!("{stem}.relmse.png")), &relmse_map(x, y), w, h)?;
+        }
+        let layer = names[0].rsplit_once('.').map_or("rgb", |(l, _)| l).to_string();
+        rows.push((input.display().to_string(), layer, metrics(x, y, w, h)));
+    }
+    let n = rows.len() as f64;
+    let mean = Metrics {
+        relmse: rows.iter().map(|r| r.2.relmse).sum::<f64>() / n,
+        psnr: rows.iter().map(|r| r.2.psnr).sum::<f64>() / n,
+        one_minus_ssim: rows.iter().map(|r| r.2.one_minus_ssim).sum::<f64>() / n,
+    };
+    match args.format {
+        Format::Table => {
+            let width = rows.iter().map(|r| r.0.len()).max().unwrap_or(4).max(4);
+            println!("{:<width$}  {:<10} {:>10} {:>8} {:>8}", "file", "layer", "relMSE", "PSNR", "1-SSIM");
+            for (f, l, m) in &rows {
+                println!("{f:<width$}  {l:<10} {:>10.5} {:>8.3} {:>8.5}", m.relmse, m.psnr, m.one_minus_ssim);
+            }
+            if rows.len() > 1 {
+                println!(
+                    "{:<width$}  {:<10} {:>10.5} {:>8.3} {:>8.5}",
+                    "mean", "", mean.relmse, mean.psnr, mean.one_minus_ssim
+                );
+            }
+        }
+        Format::Csv => {
+            println!("file,layer,relmse,psnr,one_minus_ssim");
+            for (f, l, m) in &rows {
+                println!("{f},{l},{},{},{}", m.relmse, m.psnr, m.one_minus_ssim);
+            }
+        }
+        Format::Json => {
+            let item = |f: &str, l: &str, m: &Metrics| serde_json::json!({"file": f, "layer": l, "relmse": m.relmse, "psnr": m.psnr, "one_minus_ssim": m.one_minus_ssim});
+            let doc = serde_json::json!({
+                "reference": args.reference.display().to_string(),
+                "files": rows.iter().map(|(f, l, m)| item(f, l, m)).collect::<Vec<_>>(),
+                "mean": {"relmse": mean.relmse, "psnr": mean.psnr, "one_minus_ssim": mean.one_minus_ssim},
+            });
+            println!("{doc:#}");
+        }
+    }
+    Ok(())
+}
