@@ -14,3 +14,4 @@ pub mod kernel;
 pub mod model;
 pub mod sim;
 pub mod tile;
+pub mod train;

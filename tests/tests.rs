@@ -9,3 +9,4 @@ mod io_errors;
 mod io_roundtrip;
 mod layout_files;
 mod sim;
+mod train;

@@ -7,6 +7,7 @@ mod info;
 mod model;
 mod render;
 mod sequence;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -65,6 +66,13 @@ pub enum Command {
     /// Render a training/test set: N permutations of each family, noisy frames and
     /// references, with a manifest.csv.
     Dataset(render::DatasetArgs),
+    /// Train KPCN/DPCN weights on a `kpcn dataset` folder: importance-sampled patches, phase 1
+    /// (each branch, L1 in its own domain), phase 2 (recomposed colour); checkpoints resume
+    /// exactly; Ctrl-C saves one.
+    #[command(
+        after_help = "Example:\n  kpcn dataset --count 4 -o data/ && kpcn train --data data/ -o run/ --steps 2000\n  kpcn denoise frame.exr -o den.exr --model run/model.safetensors"
+    )]
+    Train(train::TrainArgs),
     /// Inspect model files or write an untrained one.
     Model(model::ModelArgs),
 }
@@ -79,6 +87,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scenes(args) => render::run_scenes(&args),
         Command::Dataset(args) => render::run_dataset(&args),
         Command::Model(args) => model::run(&args),
+        Command::Train(args) => train::run(&args),
     }
 }
 

@@ -108,18 +108,29 @@ impl Denoiser {
         inputs: &KpcnInputs,
         progress: &(dyn Fn(Progress) -> bool + Sync),
     ) -> Result<Denoised, DenoiseError> {
-        let (w, h) = (inputs.width, inputs.height);
+        if inputs.width == 0 || inputs.height == 0 {
+            return Err(DenoiseError::Empty);
+        }
+        self.pool.install(|| self.denoise_features(&Features::new(inputs), progress))
+    }
+
+    /// Denoises already preprocessed features (the trainer validates this way).
+    pub fn denoise_features(
+        &self,
+        f: &Features,
+        progress: &(dyn Fn(Progress) -> bool + Sync),
+    ) -> Result<Denoised, DenoiseError> {
+        let (w, h) = (f.width, f.height);
         if w == 0 || h == 0 {
             return Err(DenoiseError::Empty);
         }
         self.pool.install(|| {
-            let f = Features::new(inputs);
             let tiles = tile::plan(w, h, self.tile_size(w, h));
             let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
             let mut s_hat = d_hat.clone();
             for (i, t) in tiles.iter().enumerate() {
-                let d = self.branch(&f, Branch::Diffuse, t)?;
-                let s = self.branch(&f, Branch::Specular, t)?;
+                let d = self.branch(f, Branch::Diffuse, t)?;
+                let s = self.branch(f, Branch::Specular, t)?;
                 for c in 0..3 {
                     for y in 0..t.h {
                         let at = (t.y + y) * w + t.x;

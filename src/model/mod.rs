@@ -308,9 +308,20 @@ impl Model {
 
     /// Serialises the model with its metadata.
     pub fn to_bytes(&self) -> Result<Vec<u8>, ModelError> {
+        self.to_bytes_with(Vec::new(), HashMap::new())
+    }
+
+    /// Serialises the model plus extra tensors and metadata (training checkpoints); the
+    /// result still loads as a model.
+    pub fn to_bytes_with(
+        &self,
+        extra: Vec<(String, Tensor)>,
+        extra_meta: HashMap<String, String>,
+    ) -> Result<Vec<u8>, ModelError> {
         let mut meta = self.arch.metadata();
         meta.insert("kpcn:description".into(), self.description.clone());
-        let mut named = Vec::new();
+        meta.extend(extra_meta);
+        let mut named = extra;
         for (name, b) in [("diffuse", &self.diffuse), ("specular", &self.specular)] {
             for (l, (w, bias)) in b.layers.iter().enumerate() {
                 named.push((format!("{name}.{l}.weight"), w.clone()));
@@ -324,12 +335,16 @@ impl Model {
 
     /// Writes the model file (through a temporary file, renamed into place).
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        let bytes = self.to_bytes()?;
-        let tmp = path.with_extension("safetensors.tmp");
-        let io = |source| ModelError::Io { path: path.into(), source };
-        std::fs::write(&tmp, bytes).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+        write_atomically(path, &self.to_bytes()?)
     }
+}
+
+/// Writes `bytes` to `path` through a temporary file renamed into place.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
+    let tmp = path.with_extension("safetensors.tmp");
+    let io = |source| ModelError::Io { path: path.into(), source };
+    std::fs::write(&tmp, bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
 }
 
 #[cfg(test)]

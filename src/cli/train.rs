@@ -1,0 +1,233 @@
+//! `kpcn train`: train KPCN/DPCN weights on a `kpcn dataset` folder.
+
+use super::model::{KindArg, Preset};
+use crate::model::{Architecture, Kind, Model};
+use crate::train::data::Dataset;
+use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Arguments of `kpcn train`.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// A folder written by `kpcn dataset` (with manifest.csv).
+    #[arg(long, value_name = "DIR")]
+    pub data: PathBuf,
+    /// Output folder: checkpoint.safetensors, model.safetensors, log.csv.
+    #[arg(short, long, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Architecture of a fresh model.
+    #[arg(long, value_enum, default_value_t = Preset::Small)]
+    pub preset: Preset,
+    /// Kernel prediction or direct prediction.
+    #[arg(long, value_enum, default_value_t = KindArg::Kpcn)]
+    pub kind: KindArg,
+    /// Start from this model file instead of a fresh Xavier initialisation.
+    #[arg(long, value_name = "FILE")]
+    pub init: Option<PathBuf>,
+    /// Phase-1 steps: each branch alone, L1 in its transformed domain.
+    #[arg(long, default_value_t = 1000, value_name = "N")]
+    pub steps: u64,
+    /// Phase-2 steps: both branches on the recomposed colour.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub phase2_steps: u64,
+    /// Patches per step.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Output patch side in pixels (the network also sees its halo).
+    #[arg(long, default_value_t = 65)]
+    pub patch: usize,
+    /// Adam learning rate, phase 1.
+    #[arg(long, default_value_t = 1e-4)]
+    pub lr: f64,
+    /// Adam learning rate, phase 2.
+    #[arg(long, default_value_t = 1e-5)]
+    pub lr_phase2: f64,
+    /// Seed of initialisation and patch sampling: a run is reproducible from it.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Patch selection.
+    #[arg(long, value_enum, default_value_t = Patches::Importance)]
+    pub patches: Patches,
+    /// Hold out every N-th scene (whole scenes) for validation.
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    pub holdout: usize,
+    /// Steps between checkpoints (and after the last step, and on Ctrl-C).
+    #[arg(long, default_value_t = 50, value_name = "N")]
+    pub checkpoint_every: u64,
+    /// Steps between validations on the held-out scenes.
+    #[arg(long, default_value_t = 100, value_name = "N")]
+    pub validate_every: u64,
+    /// Continue from OUTPUT/checkpoint.safetensors exactly where it stopped.
+    #[arg(long)]
+    pub resume: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+/// Patch selection strategies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Patches {
+    /// Importance map of SPEC §4 (80 %) mixed with uniform (20 %).
+    Importance,
+    /// Uniform positions.
+    Uniform,
+}
+
+fn fmt(v: f32) -> String {
+    if v.is_nan() { String::new() } else { format!("{v:.6}") }
+}
+
+/// Runs `kpcn train`.
+pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
+    if args.batch == 0 || args.patch < 8 {
+        bail!("--batch must be ≥ 1 and --patch ≥ 8");
+    }
+    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
+    let data = Dataset::load(&args.data, args.holdout.max(2))?;
+    let opts = TrainOptions {
+        phase1_steps: args.steps,
+        phase2_steps: args.phase2_steps,
+        batch: args.batch,
+        patch: args.patch,
+        lr: args.lr,
+        lr_phase2: args.lr_phase2,
+        seed: args.seed,
+        importance: args.patches == Patches::Importance,
+        checkpoint_every: args.checkpoint_every.max(1),
+        validate_every: args.validate_every.max(1),
+    };
+    let checkpoint = args.output.join(CHECKPOINT);
+    let log_path = args.output.join("log.csv");
+    let mut trainer = if args.resume {
+        Trainer::resume(&checkpoint, &data, opts.clone())
+            .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?
+    } else {
+        let model = match &args.init {
+            Some(p) => Model::load(p)?,
+            None => {
+                let kind = if matches!(args.kind, KindArg::Kpcn) { Kind::Kpcn } else { Kind::Dpcn };
+                let arch = match args.preset {
+                    Preset::Paper => Architecture::paper(kind),
+                    Preset::Small => Architecture::small(kind),
+                };
+                Model::xavier(arch, args.seed)?
+            }
+        };
+        std::fs::write(
+            &log_path,
+            "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second\n",
+        )
+        .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        Trainer::new(&model, &data, opts.clone())?
+    };
+    let mut log = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("{}: cannot open", log_path.display()))?;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    // A second Ctrl-C while saving is not special: the checkpoint is written atomically.
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+
+    let total = args.steps + args.phase2_steps;
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(total) };
+    bar.set_style(
+        ProgressStyle::with_template("{pos}/{len} [{bar:30}] {msg} ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_position(trainer.step);
+    if !args.quiet {
+        bar.suspend(|| {
+            eprintln!(
+                "kpcn train: {} training frames, {} held-out frames; {:?} {}x{} ch; start at step {}",
+                data.train.len(),
+                data.validation.len(),
+                trainer.model.base.arch.kind,
+                trainer.model.base.arch.layers,
+                trainer.model.base.arch.channels,
+                trainer.step
+            )
+        });
+    }
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = args.threads {
+        pool = pool.num_threads(n.max(1));
+    }
+    let pool = pool.build().context("cannot start worker threads")?;
+    let started = std::time::Instant::now();
+    pool.install(|| -> anyhow::Result<()> {
+        while !trainer.finished() && !stop.load(Ordering::SeqCst) {
+            let mut row: LogRow = trainer.train_step()?;
+            if row.step % opts.validate_every == 0 || trainer.finished() {
+                row.validation_relmse = trainer.validate()?;
+            }
+            let loss = if row.phase == 1 { row.loss_diffuse + row.loss_specular } else { row.loss_combined };
+            let val = row.validation_relmse.map(|v| format!(", val relMSE {v:.4}")).unwrap_or_default();
+            bar.set_message(format!(
+                "phase {} loss {loss:.4}{val}, {:.1} patches/s",
+                row.phase, row.patches_per_second
+            ));
+            bar.set_position(row.step);
+            writeln!(
+                log,
+                "{},{},{},{},{},{},{:.3}",
+                row.step,
+                row.phase,
+                fmt(row.loss_diffuse),
+                fmt(row.loss_specular),
+                fmt(row.loss_combined),
+                row.validation_relmse.map(|v| v.to_string()).unwrap_or_default(),
+                row.patches_per_second
+            )?;
+            if row.step % opts.checkpoint_every == 0 {
+                trainer.save(&checkpoint)?;
+            }
+        }
+        Ok(())
+    })?;
+    trainer.save(&checkpoint)?;
+    bar.finish_and_clear();
+    if stop.load(Ordering::SeqCst) {
+        eprintln!("kpcn train: interrupted at step {}; checkpoint saved — continue with --resume", trainer.step);
+        return Ok(());
+    }
+    let a = trainer.model.base.arch;
+    let description = format!(
+        "trained by kpcn train: {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{}, seed {}, {} patches; data {} ({} frames, {} held out)",
+        a.kind,
+        a.layers,
+        a.channels,
+        a.conv_size,
+        a.conv_size,
+        a.kernel_size,
+        a.kernel_size,
+        args.steps,
+        args.phase2_steps,
+        args.batch,
+        args.patch,
+        args.lr,
+        args.lr_phase2,
+        args.seed,
+        if opts.importance { "importance" } else { "uniform" },
+        args.data.display(),
+        data.train.len(),
+        data.validation.len()
+    );
+    let model = trainer.model.snapshot(&description)?;
+    let out = args.output.join("model.safetensors");
+    model.save(&out)?;
+    println!("{} ({} steps in {:.0} s this run)", out.display(), trainer.step, started.elapsed().as_secs_f64());
+    Ok(())
+}

@@ -1,0 +1,521 @@
+//! Training (SPEC §4 "Training"): patches from simulator renders, L1 per branch in its
+//! transformed domain (phase 1), then both branches on the recomposed colour (phase 2),
+//! Adam, checkpoints that resume exactly.
+//!
+//! The kernel application is composed from candle ops here (`apply_kernels`), so candle's
+//! autograd differentiates it; `kernel::apply` is the fast inference version.
+
+pub mod data;
+
+use crate::features::EPSILON;
+use crate::model::{BranchWeights, Kind, Model, ModelError};
+use candle_core::{DType, Device, Tensor, Var};
+
+/// Adam (AdamW with weight decay 0) whose state can be saved and restored exactly.
+pub struct Adam {
+    /// Learning rate.
+    pub lr: f64,
+    beta1: f64,
+    beta2: f64,
+    eps: f64,
+    /// Steps taken.
+    pub step: u64,
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+}
+
+impl Adam {
+    /// Fresh state for `vars`.
+    pub fn new(vars: &[Var], lr: f64) -> Result<Adam, ModelError> {
+        let zeros = |v: &Var| v.as_tensor().zeros_like();
+        Ok(Adam {
+            lr,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            step: 0,
+            m: vars.iter().map(zeros).collect::<Result<_, _>>()?,
+            v: vars.iter().map(zeros).collect::<Result<_, _>>()?,
+        })
+    }
+
+    /// One update from the gradients of `loss`.
+    pub fn step(&mut self, vars: &[Var], loss: &Tensor) -> Result<(), ModelError> {
+        let grads = loss.backward()?;
+        self.step += 1;
+        let t = self.step as i32;
+        let (c1, c2) = (1.0 - self.beta1.powi(t), 1.0 - self.beta2.powi(t));
+        for (i, var) in vars.iter().enumerate() {
+            let Some(g) = grads.get(var.as_tensor()) else { continue };
+            self.m[i] = ((&self.m[i] * self.beta1)? + (g * (1.0 - self.beta1))?)?;
+            self.v[i] = ((&self.v[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?;
+            let update = ((&self.m[i] / c1)? / ((&self.v[i] / c2)?.sqrt()? + self.eps)?)?;
+            var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
+        }
+        Ok(())
+    }
+
+    /// The moment tensors, named for a checkpoint.
+    pub fn state(&self) -> Vec<(String, Tensor)> {
+        let m = self.m.iter().enumerate().map(|(i, t)| (format!("adam.m.{i}"), t.clone()));
+        m.chain(self.v.iter().enumerate().map(|(i, t)| (format!("adam.v.{i}"), t.clone()))).collect()
+    }
+
+    /// Restores moments saved by [`Adam::state`].
+    pub fn restore(
+        &mut self,
+        tensors: &std::collections::HashMap<String, Tensor>,
+        step: u64,
+    ) -> Result<(), ModelError> {
+        for i in 0..self.m.len() {
+            let get = |k: String| {
+                tensors
+                    .get(&k)
+                    .cloned()
+                    .ok_or_else(|| ModelError::Format { origin: "checkpoint".into(), what: format!("`{k}` missing") })
+            };
+            self.m[i] = get(format!("adam.m.{i}"))?;
+            self.v[i] = get(format!("adam.v.{i}"))?;
+        }
+        self.step = step;
+        Ok(())
+    }
+}
+
+/// Softmax over `k²` logits `[B, k², h, w]` (max subtracted) applied to the noisy colour
+/// `[B, 3, h + 2r, w + 2r]`: `[B, 3, h, w]`. Composed ops, so autograd differentiates it.
+pub fn apply_kernels(logits: &Tensor, noisy: &Tensor, k: usize) -> Result<Tensor, ModelError> {
+    let (_, _, h, w) = logits.dims4()?;
+    let max = logits.max_keepdim(1)?.detach();
+    let e = logits.broadcast_sub(&max)?.exp()?;
+    let weights = e.broadcast_div(&e.sum_keepdim(1)?)?;
+    let mut acc: Option<Tensor> = None;
+    for ky in 0..k {
+        for kx in 0..k {
+            let wn = weights.narrow(1, ky * k + kx, 1)?;
+            let patch = noisy.narrow(2, ky, h)?.narrow(3, kx, w)?;
+            let term = patch.broadcast_mul(&wn)?;
+            acc = Some(match acc {
+                None => term,
+                Some(a) => (a + term)?,
+            });
+        }
+    }
+    Ok(acc.expect("k ≥ 1"))
+}
+
+/// Trainable copies of a model's weights.
+pub struct TrainableModel {
+    /// Architecture and description of the model being trained.
+    pub base: Model,
+    /// Diffuse branch (weight, bias) per layer.
+    pub diffuse: Vec<(Var, Var)>,
+    /// Specular branch.
+    pub specular: Vec<(Var, Var)>,
+}
+
+fn vars(b: &BranchWeights) -> Result<Vec<(Var, Var)>, ModelError> {
+    b.layers.iter().map(|(w, bias)| Ok((Var::from_tensor(w)?, Var::from_tensor(bias)?))).collect()
+}
+
+fn weights(v: &[(Var, Var)]) -> BranchWeights {
+    BranchWeights { layers: v.iter().map(|(w, b)| (w.as_tensor().clone(), b.as_tensor().clone())).collect() }
+}
+
+impl TrainableModel {
+    /// Makes a model's weights trainable.
+    pub fn new(m: &Model) -> Result<TrainableModel, ModelError> {
+        Ok(TrainableModel { base: m.clone(), diffuse: vars(&m.diffuse)?, specular: vars(&m.specular)? })
+    }
+
+    /// All variables of a branch (or both), flattened.
+    pub fn vars(&self, diffuse: bool, specular: bool) -> Vec<Var> {
+        let pick = |v: &Vec<(Var, Var)>| v.iter().flat_map(|(w, b)| [w.clone(), b.clone()]).collect::<Vec<_>>();
+        let mut out = Vec::new();
+        if diffuse {
+            out.extend(pick(&self.diffuse));
+        }
+        if specular {
+            out.extend(pick(&self.specular));
+        }
+        out
+    }
+
+    /// The current weights as an inference model.
+    pub fn snapshot(&self, description: &str) -> Result<Model, ModelError> {
+        let copy = |v: &[(Var, Var)]| -> Result<BranchWeights, ModelError> {
+            Ok(BranchWeights {
+                layers: v.iter().map(|(w, b)| Ok((w.as_tensor().copy()?, b.as_tensor().copy()?))).collect::<Result<
+                    _,
+                    ModelError,
+                >>(
+                )?,
+            })
+        };
+        Ok(Model {
+            arch: self.base.arch,
+            diffuse: copy(&self.diffuse)?,
+            specular: copy(&self.specular)?,
+            description: description.into(),
+        })
+    }
+
+    /// A branch's prediction for a batch: d̂ or ŝ, `[B, 3, p, p]`.
+    pub fn predict(&self, diffuse: bool, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
+        let w = weights(if diffuse { &self.diffuse } else { &self.specular });
+        let out = w.forward(input)?;
+        match self.base.arch.kind {
+            Kind::Kpcn => apply_kernels(&out, noisy, self.base.arch.kernel_size),
+            Kind::Dpcn => Ok(out),
+        }
+    }
+}
+
+/// L1 loss, the mean absolute difference.
+pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
+    Ok((a - b)?.abs()?.mean_all()?)
+}
+
+/// Recomposed colour `(albedo + ε) ⊙ d̂ + exp(ŝ) − 1` (ŝ clamped below 80).
+pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor) -> Result<Tensor, ModelError> {
+    let diffuse = ((albedo + EPSILON as f64)? * d_hat)?;
+    let specular = (s_hat.clamp(-80f32, 80f32)?.exp()? - 1.0)?;
+    Ok((diffuse + specular)?)
+}
+
+/// A scalar tensor's value.
+pub fn scalar(t: &Tensor) -> Result<f32, ModelError> {
+    Ok(t.to_dtype(DType::F32)?.to_scalar::<f32>()?)
+}
+
+/// A tensor on the CPU from a flat vector.
+pub fn tensor(data: Vec<f32>, shape: (usize, usize, usize, usize)) -> Result<Tensor, ModelError> {
+    Ok(Tensor::from_vec(data, shape, &Device::Cpu)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernel;
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| (((i as u32 + 1) * 2654435761u32.wrapping_add(seed)) >> 8) as f32 / (1 << 24) as f32 - 0.5)
+            .collect()
+    }
+
+    #[test]
+    fn composed_kernels_match_the_fast_inference_kernels() {
+        let (k, h, w) = (3, 4, 5);
+        let logits = values(k * k * h * w, 1).iter().map(|v| v * 6.0).collect::<Vec<_>>();
+        let noisy: Vec<f32> = values(3 * (h + 2) * (w + 2), 2);
+        let a = apply_kernels(
+            &tensor(logits.clone(), (1, k * k, h, w)).unwrap(),
+            &tensor(noisy.clone(), (1, 3, h + 2, w + 2)).unwrap(),
+            k,
+        )
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+        let m = (h + 2) * (w + 2);
+        let planes = [0, 1, 2].map(|c| noisy[c * m..(c + 1) * m].to_vec());
+        let b = kernel::apply(&logits, &planes, k, w, h);
+        for c in 0..3 {
+            for i in 0..h * w {
+                assert!((a[c * h * w + i] - b[c][i]).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn kernel_gradients_match_finite_differences() {
+        let (k, h, w) = (3, 2, 3);
+        let logits = Var::from_vec(values(k * k * h * w, 3), (1, k * k, h, w), &Device::Cpu).unwrap();
+        let noisy = Var::from_vec(values(3 * (h + 2) * (w + 2), 4), (1, 3, h + 2, w + 2), &Device::Cpu).unwrap();
+        let probe = tensor(values(3 * h * w, 5), (1, 3, h, w)).unwrap();
+        let loss = |l: &Tensor, n: &Tensor| -> f64 {
+            let out = apply_kernels(l, n, k).unwrap();
+            (out * &probe).unwrap().sum_all().unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
+        };
+        let out = apply_kernels(logits.as_tensor(), noisy.as_tensor(), k).unwrap();
+        let grads = (out * &probe).unwrap().sum_all().unwrap().backward().unwrap();
+        for var in [&logits, &noisy] {
+            let g = grads.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            for i in (0..base.len()).step_by(5) {
+                let eps = 1e-2f32;
+                let shifted = |d: f32| {
+                    let mut v = base.clone();
+                    v[i] += d;
+                    Tensor::from_vec(v, var.as_tensor().shape(), &Device::Cpu).unwrap()
+                };
+                let (lp, ln) = if std::ptr::eq(var, &logits) {
+                    (loss(&shifted(eps), noisy.as_tensor()), loss(&shifted(-eps), noisy.as_tensor()))
+                } else {
+                    (loss(logits.as_tensor(), &shifted(eps)), loss(logits.as_tensor(), &shifted(-eps)))
+                };
+                let fd = (lp - ln) / (2.0 * eps as f64);
+                assert!((fd - g[i] as f64).abs() < 2e-3, "index {i}: finite difference {fd}, autograd {}", g[i]);
+            }
+        }
+    }
+
+    #[test]
+    fn adam_reduces_a_quadratic() {
+        let x = Var::from_vec(vec![3.0f32, -2.0], 2, &Device::Cpu).unwrap();
+        let mut adam = Adam::new(std::slice::from_ref(&x), 0.1).unwrap();
+        for _ in 0..200 {
+            let loss = x.as_tensor().sqr().unwrap().sum_all().unwrap();
+            adam.step(std::slice::from_ref(&x), &loss).unwrap();
+        }
+        let v = x.as_tensor().to_vec1::<f32>().unwrap();
+        assert!(v.iter().all(|a| a.abs() < 0.05), "{v:?}");
+    }
+}
+
+/// How to train.
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
+    /// Phase-1 steps (each branch alone, L1 in its transformed domain).
+    pub phase1_steps: u64,
+    /// Phase-2 steps (both branches, L1 on the recomposed colour).
+    pub phase2_steps: u64,
+    /// Patches per step.
+    pub batch: usize,
+    /// Output patch side.
+    pub patch: usize,
+    /// Phase-1 learning rate.
+    pub lr: f64,
+    /// Phase-2 learning rate.
+    pub lr_phase2: f64,
+    /// Seed of patch sampling.
+    pub seed: u64,
+    /// Importance-sampled patches (else uniform).
+    pub importance: bool,
+    /// Steps between checkpoints.
+    pub checkpoint_every: u64,
+    /// Steps between validations.
+    pub validate_every: u64,
+}
+
+/// One line of the training log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogRow {
+    /// Step (1-based).
+    pub step: u64,
+    /// 1 or 2.
+    pub phase: u8,
+    /// Diffuse-branch L1 (phase 1).
+    pub loss_diffuse: f32,
+    /// Specular-branch L1 (phase 1).
+    pub loss_specular: f32,
+    /// Recomposed-colour L1 (phase 2).
+    pub loss_combined: f32,
+    /// relMSE of the held-out scenes' denoised colour, when validated this step.
+    pub validation_relmse: Option<f64>,
+    /// Training throughput.
+    pub patches_per_second: f64,
+}
+
+/// Errors of a training run.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Tensor or model-file work failed.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// Data problems.
+    #[error(transparent)]
+    Data(#[from] data::DataError),
+    /// Validation denoising failed.
+    #[error(transparent)]
+    Denoise(#[from] crate::denoise::DenoiseError),
+    /// Nothing to train on.
+    #[error(
+        "the dataset has no training frames of at least {0}×{0} pixels — render larger frames or use a smaller --patch"
+    )]
+    NoData(usize),
+    /// A checkpoint that does not belong to this run.
+    #[error("{0}")]
+    Checkpoint(String),
+}
+
+/// Checkpoint file inside the output folder: the model plus optimiser state; it also loads
+/// as a model.
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn uniform(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A training run: model, optimisers, sampler state.
+pub struct Trainer<'a> {
+    /// The weights being trained.
+    pub model: TrainableModel,
+    data: &'a data::Dataset,
+    opts: TrainOptions,
+    adam_d: Adam,
+    adam_s: Adam,
+    adam_c: Adam,
+    rng: SplitMix,
+    /// Steps done.
+    pub step: u64,
+}
+
+impl<'a> Trainer<'a> {
+    /// Starts from `model`.
+    pub fn new(model: &Model, data: &'a data::Dataset, opts: TrainOptions) -> Result<Trainer<'a>, TrainError> {
+        let usable = data.train.iter().any(|f| f.features.width >= opts.patch && f.features.height >= opts.patch);
+        if !usable {
+            return Err(TrainError::NoData(opts.patch));
+        }
+        let model = TrainableModel::new(model)?;
+        Ok(Trainer {
+            adam_d: Adam::new(&model.vars(true, false), opts.lr)?,
+            adam_s: Adam::new(&model.vars(false, true), opts.lr)?,
+            adam_c: Adam::new(&model.vars(true, true), opts.lr_phase2)?,
+            model,
+            data,
+            rng: SplitMix(opts.seed),
+            opts,
+            step: 0,
+        })
+    }
+
+    /// Continues from a checkpoint written by [`Trainer::save`].
+    pub fn resume(
+        path: &std::path::Path,
+        data: &'a data::Dataset,
+        opts: TrainOptions,
+    ) -> Result<Trainer<'a>, TrainError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        let model = Model::from_bytes(&bytes, &path.display().to_string())?;
+        let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes)
+            .map_err(|e| TrainError::Checkpoint(format!("{}: {e}", path.display())))?;
+        let meta = meta.metadata().clone().unwrap_or_default();
+        let num = |k: &str| -> Result<u64, TrainError> {
+            meta.get(k).and_then(|v| v.parse().ok()).ok_or_else(|| {
+                TrainError::Checkpoint(format!("{}: not a training checkpoint (no `{k}`)", path.display()))
+            })
+        };
+        let (step, rng) = (num("kpcn:train_step")?, num("kpcn:train_rng")?);
+        let tensors = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu).map_err(ModelError::from)?;
+        let mut t = Trainer::new(&model, data, opts)?;
+        let sub = |prefix: &str| -> std::collections::HashMap<String, Tensor> {
+            tensors
+                .iter()
+                .filter_map(|(k, v)| k.strip_prefix(prefix).map(|r| (format!("adam.{r}"), v.clone())))
+                .collect()
+        };
+        t.adam_d.restore(&sub("adam_d."), step.min(t.opts.phase1_steps))?;
+        t.adam_s.restore(&sub("adam_s."), step.min(t.opts.phase1_steps))?;
+        t.adam_c.restore(&sub("adam_c."), step.saturating_sub(t.opts.phase1_steps))?;
+        t.rng = SplitMix(rng);
+        t.step = step;
+        Ok(t)
+    }
+
+    /// Writes a checkpoint (atomically).
+    pub fn save(&self, path: &std::path::Path) -> Result<(), TrainError> {
+        let model = self.model.snapshot(&format!("training checkpoint, step {}", self.step))?;
+        let mut extra = Vec::new();
+        for (prefix, adam) in [("adam_d.", &self.adam_d), ("adam_s.", &self.adam_s), ("adam_c.", &self.adam_c)] {
+            extra.extend(adam.state().into_iter().map(|(k, v)| (format!("{prefix}{}", &k["adam.".len()..]), v)));
+        }
+        let meta = [("kpcn:train_step", self.step.to_string()), ("kpcn:train_rng", self.rng.0.to_string())]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
+        crate::model::write_atomically(path, &model.to_bytes_with(extra, meta)?)?;
+        Ok(())
+    }
+
+    /// Whether all steps are done.
+    pub fn finished(&self) -> bool {
+        self.step >= self.opts.phase1_steps + self.opts.phase2_steps
+    }
+
+    fn sample(&mut self) -> (Vec<&'a data::Frame>, Vec<(usize, usize)>) {
+        let p = self.opts.patch;
+        let usable: Vec<&data::Frame> =
+            self.data.train.iter().filter(|f| f.features.width >= p && f.features.height >= p).collect();
+        (0..self.opts.batch)
+            .map(|_| {
+                let f = usable[(self.rng.next() % usable.len() as u64) as usize];
+                (f, f.patch_origin(p, self.rng.uniform(), self.opts.importance))
+            })
+            .unzip()
+    }
+
+    /// One optimisation step.
+    pub fn train_step(&mut self) -> Result<LogRow, TrainError> {
+        let t = std::time::Instant::now();
+        let (frames, origins) = self.sample();
+        let arch = self.model.base.arch;
+        let p = self.opts.patch;
+        let bd = data::batch(&frames, &origins, p, &arch, crate::features::Branch::Diffuse)?;
+        let bs = data::batch(&frames, &origins, p, &arch, crate::features::Branch::Specular)?;
+        self.step += 1;
+        let mut row = LogRow {
+            step: self.step,
+            phase: 1,
+            loss_diffuse: f32::NAN,
+            loss_specular: f32::NAN,
+            loss_combined: f32::NAN,
+            validation_relmse: None,
+            patches_per_second: 0.0,
+        };
+        if self.step <= self.opts.phase1_steps {
+            let ld = l1(&self.model.predict(true, &bd.input, &bd.noisy)?, &bd.target)?;
+            self.adam_d.step(&self.model.vars(true, false), &ld)?;
+            let ls = l1(&self.model.predict(false, &bs.input, &bs.noisy)?, &bs.target)?;
+            self.adam_s.step(&self.model.vars(false, true), &ls)?;
+            row.loss_diffuse = scalar(&ld)?;
+            row.loss_specular = scalar(&ls)?;
+        } else {
+            row.phase = 2;
+            let d = self.model.predict(true, &bd.input, &bd.noisy)?;
+            let s = self.model.predict(false, &bs.input, &bs.noisy)?;
+            let lc = l1(&recompose(&bd.albedo, &d, &s)?, &bd.reference)?;
+            self.adam_c.step(&self.model.vars(true, true), &lc)?;
+            row.loss_combined = scalar(&lc)?;
+        }
+        row.patches_per_second = self.opts.batch as f64 / t.elapsed().as_secs_f64().max(1e-9);
+        Ok(row)
+    }
+
+    /// Mean relMSE of the denoised held-out frames (None without validation frames).
+    pub fn validate(&self) -> Result<Option<f64>, TrainError> {
+        if self.data.validation.is_empty() {
+            return Ok(None);
+        }
+        let model = self.model.snapshot("validation")?;
+        let d = crate::denoise::Denoiser::new(model, crate::denoise::Options::default())?;
+        let mut sum = 0.0;
+        for f in &self.data.validation {
+            let out = d.denoise_features(&f.features, &|_| true)?;
+            let x = [out.color[0].as_slice(), &out.color[1], &out.color[2]];
+            let y = [f.reference[0].as_slice(), &f.reference[1], &f.reference[2]];
+            sum += crate::eval::relmse(x, y);
+        }
+        Ok(Some(sum / self.data.validation.len() as f64))
+    }
+
+    /// The options.
+    pub fn options(&self) -> &TrainOptions {
+        &self.opts
+    }
+}
