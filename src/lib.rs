@@ -12,6 +12,7 @@ pub mod features;
 pub mod io;
 pub mod kernel;
 pub mod model;
+pub mod rng;
 pub mod sim;
 pub mod tile;
 pub mod train;

@@ -20,7 +20,7 @@ fn cycles_frame(w: usize, h: usize, long_names: bool) -> FrameBuffers {
     for (short, long, comps) in passes {
         let pass = if long_names { long } else { short };
         for c in *comps {
-            let data = (0..w * h).map(|_| 2.0 * rng.uniform()).collect();
+            let data = (0..w * h).map(|_| 2.0 * rng.uniform_f32()).collect();
             fb.insert(&format!("ViewLayer.{pass}.{c}"), SampleFormat::Float, data).unwrap();
         }
     }

@@ -208,31 +208,18 @@ pub struct Model {
     pub description: String,
 }
 
-/// A small deterministic generator for weight initialisation (SplitMix64).
-struct InitRng(u64);
-
-impl InitRng {
-    fn uniform(&mut self) -> f32 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
-
 impl Model {
     /// Xavier-uniform weights, zero biases, from `seed`: an untrained model.
     pub fn xavier(arch: Architecture, seed: u64) -> Result<Model, ModelError> {
         arch.validate("xavier")?;
-        let mut rng = InitRng(seed);
+        let mut rng = crate::rng::SplitMix64(seed);
         let k = arch.conv_size;
         let mut branch = || -> Result<BranchWeights, ModelError> {
             let layers = (0..arch.layers)
                 .map(|l| {
                     let (o, i) = arch.layer_channels(l);
                     let a = (6.0 / ((i + o) * k * k) as f32).sqrt();
-                    let w: Vec<f32> = (0..o * i * k * k).map(|_| (2.0 * rng.uniform() - 1.0) * a).collect();
+                    let w: Vec<f32> = (0..o * i * k * k).map(|_| (2.0 * rng.uniform_f32() - 1.0) * a).collect();
                     Ok((Tensor::from_vec(w, (o, i, k, k), &Device::Cpu)?, Tensor::zeros(o, DType::F32, &Device::Cpu)?))
                 })
                 .collect::<Result<_, ModelError>>()?;

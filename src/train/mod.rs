@@ -198,10 +198,9 @@ mod tests {
     use super::*;
     use crate::kernel;
 
-    fn values(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| (((i as u32 + 1) * 2654435761u32.wrapping_add(seed)) >> 8) as f32 / (1 << 24) as f32 - 0.5)
-            .collect()
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut rng = crate::rng::SplitMix64(seed);
+        (0..n).map(|_| rng.uniform_f32() - 0.5).collect()
     }
 
     #[test]
@@ -345,22 +344,6 @@ pub enum TrainError {
 /// as a model.
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
 
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    fn uniform(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 /// A training run: model, optimisers, sampler state.
 pub struct Trainer<'a> {
     /// The weights being trained.
@@ -370,7 +353,7 @@ pub struct Trainer<'a> {
     adam_d: Adam,
     adam_s: Adam,
     adam_c: Adam,
-    rng: SplitMix,
+    rng: crate::rng::SplitMix64,
     /// Steps done.
     pub step: u64,
 }
@@ -389,7 +372,7 @@ impl<'a> Trainer<'a> {
             adam_c: Adam::new(&model.vars(true, true), opts.lr_phase2)?,
             model,
             data,
-            rng: SplitMix(opts.seed),
+            rng: crate::rng::SplitMix64(opts.seed),
             opts,
             step: 0,
         })
@@ -423,7 +406,7 @@ impl<'a> Trainer<'a> {
         t.adam_d.restore(&sub("adam_d."), step.min(t.opts.phase1_steps))?;
         t.adam_s.restore(&sub("adam_s."), step.min(t.opts.phase1_steps))?;
         t.adam_c.restore(&sub("adam_c."), step.saturating_sub(t.opts.phase1_steps))?;
-        t.rng = SplitMix(rng);
+        t.rng = crate::rng::SplitMix64(rng);
         t.step = step;
         Ok(t)
     }
@@ -454,8 +437,8 @@ impl<'a> Trainer<'a> {
             self.data.train.iter().filter(|f| f.features.width >= p && f.features.height >= p).collect();
         (0..self.opts.batch)
             .map(|_| {
-                let f = usable[(self.rng.next() % usable.len() as u64) as usize];
-                (f, f.patch_origin(p, self.rng.uniform(), self.opts.importance))
+                let f = usable[(self.rng.next_u64() % usable.len() as u64) as usize];
+                (f, f.patch_origin(p, self.rng.uniform_f64(), self.opts.importance))
             })
             .unzip()
     }

@@ -4,23 +4,8 @@
 use kpcn::io::{Attribute, FrameBuffers, Output, OutputSpec, SampleFormat, SubimageInfo, WriteOptions};
 use std::path::{Path, PathBuf};
 
-/// A tiny deterministic generator (SplitMix64) so fixtures need no RNG crate.
-pub struct Rng(pub u64);
-
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
+/// The library's seeded generator, for fixtures.
+pub use kpcn::rng::SplitMix64 as Rng;
 
 /// Every channel of the native layout (SPEC §3), with half buffers and variances.
 pub fn native_channels() -> Vec<String> {
@@ -44,7 +29,7 @@ pub fn native_frame(w: usize, h: usize, seed: u64, drop: &[&str]) -> FrameBuffer
     let mut fb = FrameBuffers::new(w, h);
     let mut rng = Rng(seed);
     for name in native_channels().iter().filter(|n| !drop.iter().any(|d| n.starts_with(d))) {
-        let data = (0..w * h).map(|_| rng.uniform()).collect();
+        let data = (0..w * h).map(|_| rng.uniform_f32()).collect();
         fb.insert(name, SampleFormat::Float, data).expect("size matches");
     }
     fb.set_attribute(Attribute::string("kpcn:scene", "fixture"));

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Quality on the team's Blender Cycles dev set: denoise every noisy frame with MODEL and
+# print relMSE / PSNR / 1−SSIM beside the noisy input and OIDN (from baseline.csv, same
+# files, same metric conventions — `kpcn eval` reproduces that file's numbers).
+#
+#   benches/quality_cycles.sh [MODEL] [DEV_DIR]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+model=${1:-default}
+dev=${2:-../shared/data/cycles-dev}
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+cargo build --release --quiet
+kpcn=target/release/kpcn
+
+printf '%-9s %4s | %-21s | %-21s | %-21s | %s\n' scene spp "noisy relMSE/PSNR" "OIDN relMSE/PSNR" "kpcn relMSE/PSNR" "kpcn s"
+for scene in interior spheres; do
+    for spp in 4 16 64; do
+        f=$(printf '%s/%s-%05dspp.exr' "$dev" "$scene" "$spp")
+        start=$(date +%s%N)
+        $kpcn denoise "$f" -o "$work/den.exr" --model "$model" -q --threads 2
+        ms=$((($(date +%s%N) - start) / 1000000))
+        k=$($kpcn eval -r "$dev/$scene-ref.exr" "$work/den.exr" --format csv | tail -1 | cut -d, -f3,4)
+        noisy=$(grep "^$scene,$spp,noisy," "$dev/baseline.csv" | cut -d, -f4,5)
+        oidn=$(grep "^$scene,$spp,oidn," "$dev/baseline.csv" | cut -d, -f4,5)
+        printf '%-9s %4s | %-21s | %-21s | %-21s | %s\n' "$scene" "$spp" "$noisy" "$oidn" \
+            "$(printf '%.5f,%.2f' "${k%,*}" "${k#*,}")" "$((ms / 1000)).$(printf '%03d' $((ms % 1000)))"
+    done
+done
