@@ -94,7 +94,7 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     let model = Model::resolve(&args.model)?;
     if model.is_untrained() && !args.quiet {
         eprintln!(
-            "kpcn: warning: model `{}` is UNTRAINED ({}): the result is not a useful denoise until a trained model ships",
+            "kpcn: warning: model `{}` is UNTRAINED ({}): the result is not a useful denoise — use the default or a trained file",
             args.model, model.description
         );
     }

@@ -109,8 +109,21 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
     let mut trainer = if args.resume {
-        Trainer::resume(&checkpoint, &data, opts.clone())
-            .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?
+        let t = Trainer::resume(&checkpoint, &data, opts.clone())
+            .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
+        // Steps logged after the checkpoint by an interrupted run are redone: drop them.
+        let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+        let kept: Vec<&str> = log
+            .lines()
+            .enumerate()
+            .filter(|(i, l)| {
+                *i == 0 || l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s <= t.step)
+            })
+            .map(|(_, l)| l)
+            .collect();
+        std::fs::write(&log_path, kept.join("\n") + "\n")
+            .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        t
     } else {
         let model = match &args.init {
             Some(p) => Model::load(p)?,

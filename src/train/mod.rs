@@ -47,10 +47,13 @@ impl Adam {
         let (c1, c2) = (1.0 - self.beta1.powi(t), 1.0 - self.beta2.powi(t));
         for (i, var) in vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else { continue };
-            self.m[i] = ((&self.m[i] * self.beta1)? + (g * (1.0 - self.beta1))?)?;
-            self.v[i] = ((&self.v[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?;
+            // Detached: a gradient carries the step's autograd graph, and optimiser state
+            // built from it would keep every past step's graph alive (a leak of ~70 MB/step).
+            let g = g.detach();
+            self.m[i] = ((&self.m[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
+            self.v[i] = ((&self.v[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
             let update = ((&self.m[i] / c1)? / ((&self.v[i] / c2)?.sqrt()? + self.eps)?)?;
-            var.set(&(var.as_tensor() - (update * self.lr)?)?)?;
+            var.set(&(var.as_tensor().detach() - (update * self.lr)?)?)?;
         }
         Ok(())
     }
@@ -259,6 +262,20 @@ mod tests {
                 assert!((fd - g[i] as f64).abs() < 2e-3, "index {i}: finite difference {fd}, autograd {}", g[i]);
             }
         }
+    }
+
+    #[test]
+    fn optimiser_state_keeps_no_autograd_graph() {
+        // Regression: state built from undetached gradients kept every step's graph alive
+        // (24 GB after 600 training steps).
+        let x = Var::from_vec(vec![1.0f32, 2.0], 2, &Device::Cpu).unwrap();
+        let mut adam = Adam::new(std::slice::from_ref(&x), 0.1).unwrap();
+        for _ in 0..3 {
+            let loss = (x.as_tensor().sqr().unwrap().exp().unwrap()).sum_all().unwrap();
+            adam.step(std::slice::from_ref(&x), &loss).unwrap();
+        }
+        assert!(adam.state().iter().all(|(_, t)| !t.track_op()));
+        assert!(x.as_tensor().is_variable());
     }
 
     #[test]
