@@ -2,7 +2,7 @@
 
 use super::sequence::{Pattern, parse_frames};
 use crate::denoise::{Denoiser, Options, Progress};
-use crate::io::layout::{Layout, Mapping, Quantity};
+use crate::io::layout::{Layout, Mapping};
 use crate::io::{Attribute, FrameBuffers, SampleFormat, WriteOptions};
 use crate::model::Model;
 use anyhow::{Context, bail};
@@ -151,10 +151,9 @@ fn denoise_file(
     let t = std::time::Instant::now();
     let fb = FrameBuffers::read(input)?;
     let mapping = Mapping::for_frame(&fb, args.layout.map(|l| l.0));
-    let estimated: Vec<String> = Quantity::ALL
+    let estimated: Vec<String> = mapping
+        .estimated_variances()
         .iter()
-        .map(|&q| mapping.entry_for(q))
-        .filter(|e| e.quantity.required() && e.variance_status() == "estimated")
         .map(|e| format!("{} ({})", e.quantity.name(), e.variance_description()))
         .collect();
     if !estimated.is_empty() && !args.quiet && (args.verbose || !*warned) {

@@ -1,6 +1,6 @@
 //! `kpcn info`: what a file holds and what the denoiser can use.
 
-use crate::io::layout::{Layout, Mapping, Quantity};
+use crate::io::layout::{Layout, Mapping};
 use crate::io::{FrameBuffers, IoError, Plane};
 use clap::Args;
 use std::path::PathBuf;
@@ -106,12 +106,7 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
     }
     let missing = mapping.missing_required();
     if missing.is_empty() {
-        let estimated: Vec<&str> = Quantity::ALL
-            .iter()
-            .map(|&q| mapping.entry_for(q))
-            .filter(|e| e.variance_status() == "estimated")
-            .map(|e| e.quantity.name())
-            .collect();
+        let estimated: Vec<&str> = mapping.estimated_variances().iter().map(|e| e.quantity.name()).collect();
         if estimated.is_empty() {
             println!("  verdict     complete: every network input is in the file");
         } else {

@@ -111,7 +111,8 @@ impl Denoiser {
         if inputs.width == 0 || inputs.height == 0 {
             return Err(DenoiseError::Empty);
         }
-        self.pool.install(|| self.denoise_features(&Features::new(inputs), progress))
+        // Preprocessing is serial; the tiles run in the pool (`denoise_features`).
+        self.denoise_features(&Features::new(inputs), progress)
     }
 
     /// Denoises already preprocessed features (the trainer validates this way).

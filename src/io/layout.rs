@@ -492,6 +492,11 @@ impl Mapping {
         out
     }
 
+    /// Network inputs whose variance is not in the file and will be estimated.
+    pub fn estimated_variances(&self) -> Vec<&Entry> {
+        self.entries.iter().filter(|e| e.quantity.required() && e.variance_status() == "estimated").collect()
+    }
+
     /// What to do about missing channels.
     pub fn hint(&self) -> &'static str {
         self.layout.hint()
