@@ -2,7 +2,7 @@
 //! thread-count independence, a golden image, and the `kpcn denoise` command.
 
 use crate::util::{Rng, cycles_dev, native_frame, write};
-use kpcn::denoise::{Denoised, Denoiser, Options};
+use kpcn::denoise::{Denoised, Denoiser, FileJob, FileOptions, Options};
 use kpcn::features::{EPSILON, Features, reflect};
 use kpcn::io::layout::{KpcnInputs, Mapping};
 use kpcn::io::{FrameBuffers, SampleFormat, WriteOptions};
@@ -336,4 +336,60 @@ fn strided_host_buffers_denoise_like_planes() {
     let a = run(tiny(Kind::Kpcn, 5), &from_views, None, 1);
     let b = run(tiny(Kind::Kpcn, 5), &k, None, 1);
     assert_eq!(a.color, b.color);
+}
+
+/// Denoises `input` through the file path with `band` rows per band.
+fn denoise_file(model: Model, input: &Path, output: &Path, band: Option<usize>, separate: bool) -> FrameBuffers {
+    let d = Denoiser::new(model, Options { threads: Some(2), max_memory_mb: 64, tile_size: Some(16) }).unwrap();
+    let opts = FileOptions { aovs: true, separate, band_rows: band, ..FileOptions::default() };
+    FileJob::open(input, None).unwrap().run(&d, output, &opts, &|_| true).unwrap();
+    FrameBuffers::read(output).unwrap()
+}
+
+#[test]
+fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    // Depth grows downwards, so a band's own largest depth differs from the frame's.
+    let mut fb = native_frame(37, 41, 5, &[]);
+    let depth: Vec<f32> = (0..37 * 41).map(|i| (i / 37) as f32 * 0.5 + 0.1).collect();
+    fb.insert("depth.Z", SampleFormat::Float, depth).unwrap();
+    let input = write(&fb, dir.path(), "in.exr");
+    let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
+    for kind in [Kind::Kpcn, Kind::Dpcn] {
+        let whole = run(tiny(kind, 5), &k, Some(16), 2);
+        for band in [Some(1), Some(4), Some(7), None] {
+            let out = denoise_file(tiny(kind, 5), &input, &dir.path().join("out.exr"), band, false);
+            for (layer, planes) in [("denoised", &whole.color), ("denoised_diffuse", &whole.diffuse)] {
+                for (c, plane) in ["R", "G", "B"].iter().zip(planes) {
+                    let got = out.channel(&format!("{layer}.{c}")).unwrap();
+                    assert_eq!(got, plane.as_slice(), "{kind:?} band {band:?} {layer}.{c}");
+                }
+            }
+            // Every input channel is copied unchanged.
+            for p in fb.planes() {
+                assert!(out.channel(&p.name) == Some(p.data.as_slice()), "{} differs", p.name);
+            }
+            assert_eq!(out.planes().len(), fb.planes().len() + 9);
+            assert_eq!(out.attribute("kpcn:scene"), Some("fixture"));
+        }
+    }
+    // --separate reads only the network's channels and writes only the new layers.
+    let sep = denoise_file(tiny(Kind::Kpcn, 5), &input, &dir.path().join("sep.exr"), Some(6), true);
+    let names: Vec<&str> = sep.channel_names().collect();
+    assert_eq!(names.len(), 9, "{names:?}");
+    let whole = run(tiny(Kind::Kpcn, 5), &k, Some(16), 2);
+    assert_eq!(sep.channel("denoised.G").unwrap(), whole.color[1].as_slice());
+}
+
+#[test]
+fn a_cancelled_file_denoise_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(20, 20, 2, &[]), dir.path(), "in.exr");
+    let out = dir.path().join("out.exr");
+    let d = Denoiser::new(tiny(Kind::Kpcn, 5), Options { tile_size: Some(8), ..Options::default() }).unwrap();
+    let opts = FileOptions { band_rows: Some(5), ..FileOptions::default() };
+    let err = FileJob::open(&input, None).unwrap().run(&d, &out, &opts, &|p| p.done < 3).unwrap_err();
+    assert!(err.to_string().contains("cancelled"), "{err}");
+    assert!(!out.exists());
+    assert_eq!(crate::util::stray_files(dir.path(), &["in.exr"]), Vec::<String>::new());
 }

@@ -1,7 +1,7 @@
 //! Frames survive write → read exactly: samples, formats, windows, metadata, parts.
 
 use crate::util::{Rng, native_frame, stray_files, write};
-use kpcn::io::{Attribute, FrameBuffers, IoError, Part, SampleFormat, Window, WriteOptions};
+use kpcn::io::{Attribute, FrameBuffers, FrameReader, IoError, Part, SampleFormat, Window, WriteOptions};
 
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
@@ -219,4 +219,26 @@ fn a_layer_can_go_to_a_separate_file_with_the_metadata() {
     assert_eq!(names, ["denoised.B", "denoised.G", "denoised.R"]);
     assert_eq!(back.attribute("kpcn:scene"), Some("fixture"));
     assert!(matches!(fb.select(&["nope.R"]), Err(IoError::NoSuchChannel { .. })));
+}
+
+#[test]
+fn bands_of_chosen_channels_read_like_the_whole_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let fb = native_frame(13, 150, 9, &[]);
+    let path = write(&fb, dir.path(), "f.exr");
+    let mut reader = FrameReader::open(&path).unwrap();
+    assert_eq!(reader.channel_names().count(), fb.planes().len());
+    // Far-apart channels, one asked for twice, across the 64-row read blocks.
+    let names = ["R", "depthVariance.Z", "normal.G", "R"];
+    for (y0, y1) in [(0, 150), (3, 4), (60, 131), (149, 150), (140, 500)] {
+        let band = reader.read_band(Some(&names), y0, y1).unwrap();
+        let y1 = y1.min(150);
+        assert_eq!((band.width(), band.height(), band.window.y), (13, y1 - y0, y0 as i32));
+        for (p, n) in band.planes().iter().zip(names) {
+            assert_eq!(p.name, n);
+            assert_eq!(p.data, fb.channel(n).unwrap()[y0 * 13..y1 * 13], "{n} rows {y0}..{y1}");
+        }
+    }
+    let err = reader.read_band(Some(&["nope.R"]), 0, 1).unwrap_err().to_string();
+    assert!(err.contains("nope.R") && err.contains("f.exr"), "{err}");
 }

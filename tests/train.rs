@@ -66,7 +66,7 @@ fn weights(m: &Model) -> Vec<u32> {
 fn training_lowers_the_loss_and_resumes_bit_exactly() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3).unwrap();
+    let data = Dataset::load(dir.path(), 3, false).unwrap();
     assert_eq!((data.train.len(), data.validation.len()), (4, 2), "whole scenes are held out");
 
     // The loss on a fixed batch goes down.
@@ -146,4 +146,34 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
         "-q",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+#[test]
+fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let fresh = Dataset::load(dir.path(), 3, true).unwrap();
+    assert_eq!(fresh.cached, 0);
+    let again = Dataset::load(dir.path(), 3, true).unwrap();
+    assert_eq!(again.cached, 6);
+    for (a, b) in fresh.train.iter().chain(&fresh.validation).zip(again.train.iter().chain(&again.validation)) {
+        assert_eq!((&a.scene, a.spp), (&b.scene, b.spp));
+        assert!(a.features == b.features && a.target_d == b.target_d && a.target_s == b.target_s);
+        assert!(a.reference == b.reference);
+        assert_eq!(a.centres(true), b.centres(true));
+        assert_eq!(a.centres(false), b.centres(false));
+        assert!(!a.centres(true).is_empty());
+    }
+    // A damaged cache file and a re-rendered source are both rebuilt, not trusted.
+    let cache = dir.path().join("cache");
+    let mut files: Vec<_> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    std::fs::write(&files[0], b"garbage").unwrap();
+    let manifest = std::fs::read_to_string(dir.path().join("manifest.csv")).unwrap();
+    let noisy = manifest.lines().nth(2).unwrap().split(',').nth(5).unwrap().to_string();
+    let bytes = std::fs::read(dir.path().join(&noisy)).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::write(dir.path().join(&noisy), bytes).unwrap();
+    let third = Dataset::load(dir.path(), 3, true).unwrap();
+    assert_eq!(third.cached, 4);
 }

@@ -1,11 +1,11 @@
 //! `kpcn denoise`: files and image sequences, a thin shell over `Denoiser`.
 
 use super::sequence::{Pattern, parse_frames};
-use crate::denoise::{Denoiser, Options, Progress};
-use crate::io::layout::{Layout, Mapping};
-use crate::io::{Attribute, FrameBuffers, SampleFormat, WriteOptions};
+use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
+use crate::io::WriteOptions;
+use crate::io::layout::Layout;
 use crate::model::Model;
-use anyhow::{Context, bail};
+use anyhow::bail;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
@@ -49,7 +49,8 @@ pub struct DenoiseArgs {
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
-    /// Working-memory budget per tile in MB; bigger means fewer, larger tiles.
+    /// Working-memory budget in MB for one tile's network and for one band of rows in
+    /// flight (frames are read and written a band at a time); bigger means fewer tiles.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
@@ -149,8 +150,8 @@ fn denoise_file(
     bar: &ProgressBar,
 ) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
-    let fb = FrameBuffers::read(input)?;
-    let mapping = Mapping::for_frame(&fb, args.layout.map(|l| l.0));
+    let job = FileJob::open(input, args.layout.map(|l| l.0))?;
+    let mapping = job.mapping().clone();
     let estimated: Vec<String> = mapping
         .estimated_variances()
         .iter()
@@ -167,24 +168,21 @@ fn denoise_file(
         });
         *warned = true;
     }
-    let inputs = mapping.extract(&fb)?;
-    let d = denoiser.denoise(&inputs, progress).with_context(|| format!("{}: denoising failed", input.display()))?;
-
-    let mut out = if args.separate { fb.select(&[])? } else { fb };
-    out.insert_rgb(&args.layer, SampleFormat::Float, d.color)?;
-    if args.aovs {
-        out.insert_rgb(&format!("{}_diffuse", args.layer), SampleFormat::Float, d.diffuse)?;
-        out.insert_rgb(&format!("{}_specular", args.layer), SampleFormat::Float, d.specular)?;
-    }
-    out.set_attribute(Attribute::string("kpcn:model", &denoiser.model().description));
-    out.set_attribute(Attribute::string("kpcn:layout", mapping.layout.name()));
-    out.write(output, &WriteOptions { compression: None, no_clobber: args.no_clobber })?;
+    let opts = FileOptions {
+        layer: args.layer.clone(),
+        aovs: args.aovs,
+        separate: args.separate,
+        write: WriteOptions { compression: None, no_clobber: args.no_clobber },
+        band_rows: None,
+    };
+    let (w, h) = job.size();
+    let band = job.band_rows(denoiser, &opts);
+    job.run(denoiser, output, &opts, progress)?;
     if args.verbose {
-        let (w, h) = (out.width(), out.height());
-        let tile = denoiser.tile_size(w, h);
+        let tile = denoiser.tile_size(w, band);
         bar.suspend(|| {
             println!(
-                "{} -> {} ({w}x{h}, layout {}, tiles {tile}px, {:.2} s)",
+                "{} -> {} ({w}x{h}, layout {}, bands of {band} rows, tiles {tile}px, {:.2} s)",
                 input.display(),
                 output.display(),
                 Layout::name(mapping.layout),

@@ -63,6 +63,9 @@ pub struct TrainArgs {
     /// Steps between validations on the held-out scenes.
     #[arg(long, default_value_t = 100, value_name = "N")]
     pub validate_every: u64,
+    /// Do not read or write the preprocessed-frame cache (DATA/cache/).
+    #[arg(long)]
+    pub no_cache: bool,
     /// Continue from OUTPUT/checkpoint.safetensors exactly where it stopped.
     #[arg(long)]
     pub resume: bool,
@@ -77,9 +80,10 @@ pub struct TrainArgs {
 /// Patch selection strategies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Patches {
-    /// Importance map of SPEC §4 (80 %) mixed with uniform (20 %).
+    /// SPEC §4: 400 dart-thrown candidates per frame, pruned to 100 by error diffusion over
+    /// the importance map (relative colour variance + normal variance), 10 % floor.
     Importance,
-    /// Uniform positions.
+    /// 100 dart-thrown candidates per frame, unpruned (evenly spread).
     Uniform,
 }
 
@@ -93,7 +97,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         bail!("--batch must be ≥ 1 and --patch ≥ 8");
     }
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
-    let data = Dataset::load(&args.data, args.holdout.max(2))?;
+    let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache)?;
     let opts = TrainOptions {
         phase1_steps: args.steps,
         phase2_steps: args.phase2_steps,
@@ -164,9 +168,10 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     if !args.quiet {
         bar.suspend(|| {
             eprintln!(
-                "kpcn train: {} training frames, {} held-out frames; {:?} {}x{} ch; start at step {}",
+                "kpcn train: {} training frames, {} held-out frames ({} from the cache); {:?} {}x{} ch; start at step {}",
                 data.train.len(),
                 data.validation.len(),
+                data.cached,
                 trainer.model.base.arch.kind,
                 trainer.model.base.arch.layers,
                 trainer.model.base.arch.channels,

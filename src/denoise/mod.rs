@@ -11,6 +11,10 @@ use crate::model::{Kind, Model, ModelError};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 
+mod file;
+
+pub use file::{FileError, FileJob, FileOptions};
+
 /// ŝ is clamped below this before `exp` so the specular output stays finite.
 const MAX_LOG_SPECULAR: f32 = 80.0;
 
@@ -121,7 +125,20 @@ impl Denoiser {
         f: &Features,
         progress: &(dyn Fn(Progress) -> bool + Sync),
     ) -> Result<Denoised, DenoiseError> {
-        let (w, h) = (f.width, f.height);
+        self.denoise_rows(f, 0..f.height, progress)
+    }
+
+    /// Denoises rows `rows` of `f`; rows outside it serve as context only. A band of a
+    /// frame with [`Denoiser::halo`] context rows on each side (or the frame edge) gives
+    /// exactly the rows the whole frame would.
+    pub fn denoise_rows(
+        &self,
+        f: &Features,
+        rows: std::ops::Range<usize>,
+        progress: &(dyn Fn(Progress) -> bool + Sync),
+    ) -> Result<Denoised, DenoiseError> {
+        let (w, y0) = (f.width, rows.start);
+        let h = rows.end.min(f.height).saturating_sub(y0);
         if w == 0 || h == 0 {
             return Err(DenoiseError::Empty);
         }
@@ -130,8 +147,9 @@ impl Denoiser {
             let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
             let mut s_hat = d_hat.clone();
             for (i, t) in tiles.iter().enumerate() {
-                let d = self.branch(f, Branch::Diffuse, t)?;
-                let s = self.branch(f, Branch::Specular, t)?;
+                let t_frame = Tile { y: t.y + y0, ..*t };
+                let d = self.branch(f, Branch::Diffuse, &t_frame)?;
+                let s = self.branch(f, Branch::Specular, &t_frame)?;
                 for c in 0..3 {
                     for y in 0..t.h {
                         let at = (t.y + y) * w + t.x;
@@ -143,8 +161,16 @@ impl Denoiser {
                     return Err(DenoiseError::Cancelled);
                 }
             }
-            Ok(recompose(&f.albedo, &d_hat, &s_hat, w, h))
+            let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
+            Ok(recompose(&albedo, &d_hat, &s_hat, w, h))
         })
+    }
+
+    /// Context rows (or columns) a pixel's result depends on beyond the pixel itself:
+    /// the network's and the kernel's reach, plus one row each for the backward-difference
+    /// gradients and the 3×3 variance estimates.
+    pub fn halo(&self) -> usize {
+        self.model.arch.feature_radius().max(self.model.arch.kernel_radius()) + 2
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.

@@ -103,6 +103,11 @@ fn grad_at(p: &[f32], w: usize, x: usize, y: usize, along_x: bool) -> f32 {
     sanitize(g)
 }
 
+/// The largest finite depth (0 when none is positive): depth is divided by it.
+pub fn max_depth(depth: &[f32]) -> f32 {
+    depth.iter().fold(0f32, |m, &d| m.max(sanitize(d)))
+}
+
 /// Demodulated diffuse `diffuse / (albedo + ε)`.
 pub fn demodulate(diffuse: &[f32], albedo: &[f32]) -> Vec<f32> {
     diffuse.iter().zip(albedo).map(|(d, a)| d / (a + EPSILON)).collect()
@@ -116,6 +121,12 @@ pub fn log_specular(s: &[f32]) -> Vec<f32> {
 impl Features {
     /// Preprocesses one frame.
     pub fn new(k: &KpcnInputs) -> Features {
+        Self::with_max_depth(k, max_depth(&k.depth))
+    }
+
+    /// Preprocesses part of a frame whose largest finite depth ([`max_depth`] of the whole
+    /// frame) is known, so that a band of rows gets the same features as the whole frame.
+    pub fn with_max_depth(k: &KpcnInputs, max_depth: f32) -> Features {
         let (w, h) = (k.width, k.height);
         let n = w * h;
         // Reflectance is never negative; clamping also keeps albedo + ε away from 0.
@@ -125,7 +136,6 @@ impl Features {
 
         // Depth: non-finite → 0, ≥ 0, divided by the frame's largest finite depth.
         let depth_raw = clean(&k.depth);
-        let max_depth = depth_raw.iter().fold(0f32, |m, &d| m.max(d));
         let scale = if max_depth > 0.0 { 1.0 / max_depth as f64 } else { 0.0 };
         let depth = depth_raw.iter().map(|&d| (d.max(0.0) as f64 * scale) as f32).collect();
         let depth_variance =

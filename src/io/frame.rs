@@ -209,14 +209,42 @@ impl FrameBuffers {
     /// Reads every channel of every part of `path`. Parts must share one resolution; a
     /// channel whose name repeats an earlier part's is prefixed with its part's name.
     pub fn read(path: &Path) -> Result<Self, IoError> {
+        let mut reader = FrameReader::open(path)?;
+        let h = reader.header().height;
+        reader.read_band(None, 0, h)
+    }
+}
+
+/// Where a channel of a [`FrameReader`] lives in the file.
+#[derive(Debug, Clone)]
+struct ChannelRef {
+    name: String,
+    format: SampleFormat,
+    subimage: usize,
+    index: usize,
+}
+
+/// An open image file read a band of rows at a time, so a frame larger than memory
+/// allows can be processed in pieces (`kpcn denoise` streams this way).
+pub struct FrameReader {
+    input: Input,
+    header: FrameBuffers,
+    channels: Vec<ChannelRef>,
+    /// Per subimage: tile height (0 for scanline files) and data-window origin y.
+    subimages: Vec<SubimageInfo>,
+}
+
+impl FrameReader {
+    /// Opens `path` and reads its headers (no pixels yet).
+    pub fn open(path: &Path) -> Result<Self, IoError> {
         let open_err = |reason: String| IoError::Open { path: path.into(), reason };
         if !path.exists() {
             return Err(open_err("no such file".into()));
         }
-        let mut input = Input::open(path).map_err(open_err)?;
+        let input = Input::open(path).map_err(open_err)?;
         let info0 = input.info(0).map_err(open_err)?;
-        let mut frame = FrameBuffers::new(info0.width, info0.height);
-        frame.window = Window {
+        let mut header = FrameBuffers::new(info0.width, info0.height);
+        header.window = Window {
             x: info0.x,
             y: info0.y,
             full_x: info0.full_x,
@@ -224,10 +252,12 @@ impl FrameBuffers {
             full_width: info0.full_width,
             full_height: info0.full_height,
         };
-        frame.source = Some(path.into());
-        frame.parts = input.subimages();
-        frame.attributes = input.attributes(0).map_err(open_err)?;
+        header.source = Some(path.into());
+        header.parts = input.subimages();
+        header.attributes = input.attributes(0).map_err(open_err)?;
         let mut seen = HashSet::new();
+        let mut channels = Vec::new();
+        let mut subimages = Vec::new();
         for s in 0..input.subimages() {
             let info = input.info(s).map_err(open_err)?;
             let part = input.subimage_name(s);
@@ -245,43 +275,124 @@ impl FrameBuffers {
                     height0: info0.height,
                 });
             }
-            let channels = input.channels(s).map_err(open_err)?;
-            let planes = read_planes(&mut input, s, &info, channels.len()).map_err(|reason| IoError::Read {
-                path: path.into(),
-                subimage: s,
-                reason,
-            })?;
-            for ((name, format), data) in channels.into_iter().zip(planes) {
+            for (index, (name, format)) in input.channels(s).map_err(open_err)?.into_iter().enumerate() {
                 let name = if seen.contains(&name) && !part.is_empty() { format!("{part}.{name}") } else { name };
                 seen.insert(name.clone());
-                frame.planes.push(Plane { name, format, data });
+                channels.push(ChannelRef { name, format, subimage: s, index });
             }
+            subimages.push(info);
+        }
+        Ok(FrameReader { input, header, channels, subimages })
+    }
+
+    /// Size, windows, metadata and source of the frame; no planes.
+    pub fn header(&self) -> &FrameBuffers {
+        &self.header
+    }
+
+    /// Channel names in file order (as [`FrameBuffers::read`] names them).
+    pub fn channel_names(&self) -> impl Iterator<Item = &str> {
+        self.channels.iter().map(|c| c.name.as_str())
+    }
+
+    /// Format of each channel in file order.
+    pub fn channel_formats(&self) -> impl Iterator<Item = (&str, SampleFormat)> {
+        self.channels.iter().map(|c| (c.name.as_str(), c.format))
+    }
+
+    /// Rows `[y0, y1)` (relative to the data window) of the named channels (all when
+    /// `None`) as a frame of height `y1 − y0` whose data window starts at row `y0`.
+    pub fn read_band(&mut self, names: Option<&[&str]>, y0: usize, y1: usize) -> Result<FrameBuffers, IoError> {
+        let path = self.header.display_path();
+        let y1 = y1.min(self.header.height);
+        let y0 = y0.min(y1);
+        let wanted: Vec<usize> = match names {
+            None => (0..self.channels.len()).collect(),
+            Some(names) => names
+                .iter()
+                .map(|n| {
+                    self.channels
+                        .iter()
+                        .position(|c| c.name == *n)
+                        .ok_or_else(|| IoError::NoSuchChannel { path: path.clone(), channel: n.to_string() })
+                })
+                .collect::<Result<_, _>>()?,
+        };
+        let mut frame = FrameBuffers { height: y1 - y0, ..self.header.clone_header() };
+        frame.window.y += y0 as i32;
+        frame.parts = self.header.parts;
+        let mut data: Vec<Option<Vec<f32>>> = vec![None; wanted.len()];
+        for (s, info) in self.subimages.iter().enumerate() {
+            let mut indices: Vec<(usize, usize)> = wanted
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| self.channels[**c].subimage == s)
+                .map(|(k, c)| (self.channels[*c].index, k))
+                .collect();
+            indices.sort_unstable();
+            // Contiguous blocks of at most CHANNEL_BLOCK channels, one decode each.
+            let mut i = 0;
+            while i < indices.len() {
+                let c0 = indices[i].0;
+                let mut j = i;
+                while j < indices.len() && indices[j].0 < c0 + CHANNEL_BLOCK {
+                    j += 1;
+                }
+                let c1 = indices[j - 1].0 + 1;
+                let mut planes = read_planes(&mut self.input, s, info, y0, y1, c0, c1)
+                    .map_err(|reason| IoError::Read { path: path.clone(), subimage: s, reason })?;
+                for p in i..j {
+                    let (index, k) = indices[p];
+                    // A channel asked for twice is copied; otherwise moved.
+                    let again = p + 1 < j && indices[p + 1].0 == index;
+                    let plane = &mut planes[index - c0];
+                    data[k] = Some(if again { plane.clone() } else { std::mem::take(plane) });
+                }
+                i = j;
+            }
+        }
+        for (c, d) in wanted.iter().zip(data) {
+            let ch = &self.channels[*c];
+            frame.planes.push(Plane { name: ch.name.clone(), format: ch.format, data: d.unwrap_or_default() });
         }
         Ok(frame)
     }
 }
 
-/// Decodes all channels of subimage `s` into planes, a band of rows and a block of
-/// channels at a time so the interleaved scratch stays small.
-fn read_planes(input: &mut Input, s: usize, info: &SubimageInfo, nch: usize) -> Result<Vec<Vec<f32>>, String> {
+/// Decodes rows `[y0, y1)` of channels `[c0, c1)` of subimage `s` into planes, a band of
+/// rows at a time so the interleaved scratch stays small. Tiled files are read from tile
+/// boundaries and cropped.
+fn read_planes(
+    input: &mut Input,
+    s: usize,
+    info: &SubimageInfo,
+    y0: usize,
+    y1: usize,
+    c0: usize,
+    c1: usize,
+) -> Result<Vec<Vec<f32>>, String> {
     let (w, h) = (info.width, info.height);
-    let mut planes = vec![vec![0f32; w * h]; nch];
-    let band = if info.tile_height > 0 { info.tile_height * ROW_BAND.div_ceil(info.tile_height) } else { ROW_BAND };
+    let k = c1 - c0;
+    let mut planes = vec![vec![0f32; w * (y1 - y0)]; k];
+    let th = info.tile_height.max(1);
+    let band = th * ROW_BAND.div_ceil(th);
     let mut scratch = Vec::new();
-    for c0 in (0..nch).step_by(CHANNEL_BLOCK) {
-        let c1 = (c0 + CHANNEL_BLOCK).min(nch);
-        let k = c1 - c0;
-        for r0 in (0..h).step_by(band) {
-            let r1 = (r0 + band).min(h);
-            scratch.resize((r1 - r0) * w * k, 0.0);
-            input.read_rows(s, info.y + r0 as i32, info.y + r1 as i32, c0, c1, &mut scratch)?;
-            for (i, px) in scratch.chunks_exact(k).enumerate() {
-                let at = r0 * w + i;
+    // Read from the tile boundary at or before y0.
+    let mut r0 = y0 / th * th;
+    while r0 < y1 {
+        let r1 = (r0 + band).min(h);
+        scratch.resize((r1 - r0) * w * k, 0.0);
+        input.read_rows(s, info.y + r0 as i32, info.y + r1 as i32, c0, c1, &mut scratch)?;
+        for r in r0.max(y0)..r1.min(y1) {
+            let src = &scratch[(r - r0) * w * k..(r - r0 + 1) * w * k];
+            let at = (r - y0) * w;
+            for (i, px) in src.chunks_exact(k).enumerate() {
                 for (j, v) in px.iter().enumerate() {
-                    planes[c0 + j][at] = *v;
+                    planes[j][at + i] = *v;
                 }
             }
         }
+        r0 = r1;
     }
     Ok(planes)
 }

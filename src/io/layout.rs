@@ -163,6 +163,18 @@ impl Source {
         }
     }
 
+    fn channels(&self, out: &mut Vec<String>) {
+        match self {
+            Source::Channels(c) => out.extend(c.iter().cloned()),
+            Source::Missing(_) => {}
+            Source::Sum(a, b) | Source::Difference(a, b) | Source::Product(a, b) => {
+                a.channels(out);
+                b.channels(out);
+            }
+            Source::MissAbove(a, _) => a.channels(out),
+        }
+    }
+
     fn is_derived(&self) -> bool {
         !matches!(self, Source::Channels(_) | Source::Missing(_))
     }
@@ -240,6 +252,18 @@ pub struct Entry {
 }
 
 impl Entry {
+    /// The file channels its mean is computed from.
+    pub fn mean_channels(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        self.mean.channels(&mut out);
+        out
+    }
+
+    /// Its mean on `fb` (one plane per component); `None` when a channel is missing.
+    pub fn eval_mean(&self, fb: &FrameBuffers) -> Option<Vec<Vec<f32>>> {
+        self.mean.eval(fb)
+    }
+
     /// One-word status of the mean: present, derived or missing.
     pub fn mean_status(&self) -> &'static str {
         if self.mean.is_missing() {
@@ -495,6 +519,21 @@ impl Mapping {
     /// Network inputs whose variance is not in the file and will be estimated.
     pub fn estimated_variances(&self) -> Vec<&Entry> {
         self.entries.iter().filter(|e| e.quantity.required() && e.variance_status() == "estimated").collect()
+    }
+
+    /// Every file channel [`extract`](Mapping::extract) reads, each once, in mapping order:
+    /// what a streaming reader needs to load.
+    pub fn channels(&self) -> Vec<String> {
+        let mut all = Vec::new();
+        for e in &self.entries {
+            e.mean.channels(&mut all);
+            if let VarianceSource::Channels(c) | VarianceSource::HalfBuffer(c) = &e.variance {
+                all.extend(c.iter().cloned());
+            }
+        }
+        let mut seen = HashSet::new();
+        all.retain(|c| seen.insert(c.clone()));
+        all
     }
 
     /// What to do about missing channels.

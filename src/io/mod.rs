@@ -10,7 +10,7 @@ mod view;
 mod write;
 
 pub use error::IoError;
-pub use frame::{FrameBuffers, Plane, Window};
+pub use frame::{FrameBuffers, FrameReader, Plane, Window};
 pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
 pub use view::{ImageView, InputViews};
-pub use write::{COMPRESSIONS, Part, WriteOptions};
+pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};

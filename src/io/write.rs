@@ -3,7 +3,7 @@
 
 use super::error::IoError;
 use super::frame::{FrameBuffers, Plane};
-use super::oiio::{Attribute, Output, OutputSpec, SubimageInfo};
+use super::oiio::{Attribute, Output, OutputSpec, SampleFormat, SubimageInfo};
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -68,18 +68,6 @@ impl FrameBuffers {
     /// Writes the frame as a multi-part EXR, one part per [`Part`], atomically. Every
     /// part carries the frame's attributes.
     pub fn write_parts(&self, path: &Path, parts: &[Part], opts: &WriteOptions) -> Result<(), IoError> {
-        let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-        if !is_exr {
-            return Err(IoError::NotExr { path: path.into() });
-        }
-        let compression = match &opts.compression {
-            Some(c) if COMPRESSIONS.contains(&c.as_str()) => c.clone(),
-            Some(c) => return Err(IoError::Compression(c.clone())),
-            None => self.attribute("compression").filter(|c| COMPRESSIONS.contains(c)).unwrap_or("zip").to_string(),
-        };
-        if opts.no_clobber && path.exists() {
-            return Err(IoError::Exists { path: path.into() });
-        }
         let planes: Vec<Vec<&Plane>> = parts
             .iter()
             .map(|part| {
@@ -92,63 +80,148 @@ impl FrameBuffers {
                     .collect()
             })
             .collect::<Result<_, _>>()?;
-        let attributes: Vec<Attribute> =
-            self.attributes.iter().filter(|a| !is_file_structure(&a.name)).cloned().collect();
-        let specs: Vec<OutputSpec> = parts
+        let layout: Vec<(&str, Vec<(&str, SampleFormat)>)> = parts
             .iter()
             .zip(&planes)
-            .map(|(part, planes)| OutputSpec {
-                part_name: part.name,
-                info: SubimageInfo { nchannels: planes.len(), ..self.subimage_info() },
-                channels: planes.iter().map(|p| (p.name.as_str(), p.format)).collect(),
+            .map(|(part, planes)| (part.name, planes.iter().map(|p| (p.name.as_str(), p.format)).collect()))
+            .collect();
+        let mut out = FrameWriter::create(path, self, &layout, opts)?;
+        for (i, planes) in planes.iter().enumerate() {
+            if i > 0 {
+                out.next_part()?;
+            }
+            let data: Vec<&[f32]> = planes.iter().map(|p| p.data.as_slice()).collect();
+            out.write_band(&data, self.height())?;
+        }
+        out.commit()
+    }
+}
+
+/// An EXR written a band of rows at a time into a temporary file that replaces `path`
+/// only on [`commit`](FrameWriter::commit): dropped uncommitted (an error, a panic, a
+/// cancel), it leaves nothing behind.
+pub struct FrameWriter {
+    out: Option<Output>,
+    path: PathBuf,
+    guard: TempGuard,
+    no_clobber: bool,
+    width: usize,
+    y0: i32,
+    /// Channels of each part, and the part being written.
+    nchannels: Vec<usize>,
+    part: usize,
+    /// Next row of the current part (relative to the data window).
+    row: usize,
+    scratch: Vec<f32>,
+}
+
+impl FrameWriter {
+    /// Starts writing `path` with `header`'s size, windows and attributes, and these parts
+    /// (name, channels with formats). Compression: `opts`, else the header's, else zip.
+    pub fn create(
+        path: &Path,
+        header: &FrameBuffers,
+        parts: &[(&str, Vec<(&str, SampleFormat)>)],
+        opts: &WriteOptions,
+    ) -> Result<FrameWriter, IoError> {
+        let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+        if !is_exr {
+            return Err(IoError::NotExr { path: path.into() });
+        }
+        let compression = match &opts.compression {
+            Some(c) if COMPRESSIONS.contains(&c.as_str()) => c.clone(),
+            Some(c) => return Err(IoError::Compression(c.clone())),
+            None => header.attribute("compression").filter(|c| COMPRESSIONS.contains(c)).unwrap_or("zip").to_string(),
+        };
+        if opts.no_clobber && path.exists() {
+            return Err(IoError::Exists { path: path.into() });
+        }
+        let attributes: Vec<Attribute> =
+            header.attributes.iter().filter(|a| !is_file_structure(&a.name)).cloned().collect();
+        let specs: Vec<OutputSpec> = parts
+            .iter()
+            .map(|(name, channels)| OutputSpec {
+                part_name: name,
+                info: SubimageInfo { nchannels: channels.len(), ..header.subimage_info() },
+                channels: channels.clone(),
                 compression: &compression,
                 attributes: &attributes,
             })
             .collect();
-
-        let write_err = |reason: String| IoError::Write { path: path.into(), reason };
         let tmp = temp_path(path);
-        let mut guard = TempGuard(Some(tmp.clone()));
-        let mut out = Output::create(&tmp, &specs).map_err(write_err)?;
-        for (i, planes) in planes.iter().enumerate() {
-            if i > 0 {
-                out.next_part().map_err(write_err)?;
-            }
-            self.write_part(&mut out, planes).map_err(write_err)?;
-        }
-        out.close().map_err(write_err)?;
+        let guard = TempGuard(Some(tmp.clone()));
+        let out = Output::create(&tmp, &specs).map_err(|reason| IoError::Write { path: path.into(), reason })?;
+        Ok(FrameWriter {
+            out: Some(out),
+            path: path.into(),
+            guard,
+            no_clobber: opts.no_clobber,
+            width: header.width(),
+            y0: header.window.y,
+            nchannels: parts.iter().map(|(_, c)| c.len()).collect(),
+            part: 0,
+            row: 0,
+            scratch: Vec::new(),
+        })
+    }
 
-        let fs_err = |e: std::io::Error| write_err(e.to_string());
-        fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(fs_err)?;
-        if opts.no_clobber {
-            // A hard link fails if the target appeared meanwhile: no race with other writers.
-            fs::hard_link(&tmp, path).map_err(|e| match e.kind() {
-                std::io::ErrorKind::AlreadyExists => IoError::Exists { path: path.into() },
-                _ => fs_err(e),
-            })?;
-        } else {
-            fs::rename(&tmp, path).map_err(fs_err)?;
-            guard.0 = None;
+    fn err(&self, reason: String) -> IoError {
+        IoError::Write { path: self.path.clone(), reason }
+    }
+
+    /// Writes the next `rows` rows of the current part: one plane per channel, in the
+    /// part's channel order, each `rows × width` samples.
+    pub fn write_band(&mut self, planes: &[&[f32]], rows: usize) -> Result<(), IoError> {
+        let (w, nch) = (self.width, self.nchannels[self.part]);
+        let n = rows * w;
+        if planes.len() != nch || planes.iter().any(|p| p.len() != n) {
+            return Err(self.err(format!("a band of {} channels × {n} samples; the part has {nch} channels", planes.len())));
         }
-        drop(guard);
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            // Make the rename durable; failure here loses nothing already written.
-            let _ = fs::File::open(dir).and_then(|d| d.sync_all());
+        let out = self.out.as_mut().expect("open until commit");
+        for r0 in (0..rows).step_by(ROW_BAND) {
+            let r1 = (r0 + ROW_BAND).min(rows);
+            self.scratch.clear();
+            for i in r0 * w..r1 * w {
+                self.scratch.extend(planes.iter().map(|p| p[i]));
+            }
+            let y = self.y0 + self.row as i32;
+            out.write_rows(y + r0 as i32, y + r1 as i32, &self.scratch)
+                .map_err(|reason| IoError::Write { path: self.path.clone(), reason })?;
         }
+        self.row += rows;
         Ok(())
     }
 
-    fn write_part(&self, out: &mut Output, planes: &[&Plane]) -> Result<(), String> {
-        let (w, h) = (self.width(), self.height());
-        let mut band = Vec::with_capacity(ROW_BAND * w * planes.len());
-        for r0 in (0..h).step_by(ROW_BAND) {
-            let r1 = (r0 + ROW_BAND).min(h);
-            band.clear();
-            for i in r0 * w..r1 * w {
-                band.extend(planes.iter().map(|p| p.data[i]));
-            }
-            let y = self.window.y;
-            out.write_rows(y + r0 as i32, y + r1 as i32, &band)?;
+    /// Finishes the current part and starts the next.
+    pub fn next_part(&mut self) -> Result<(), IoError> {
+        let out = self.out.as_mut().expect("open until commit");
+        out.next_part().map_err(|reason| IoError::Write { path: self.path.clone(), reason })?;
+        self.part += 1;
+        self.row = 0;
+        Ok(())
+    }
+
+    /// Closes, syncs and moves the file into place.
+    pub fn commit(mut self) -> Result<(), IoError> {
+        let path = self.path.clone();
+        let write_err = |reason: String| IoError::Write { path: path.clone(), reason };
+        self.out.take().expect("open until commit").close().map_err(write_err)?;
+        let tmp = self.guard.0.clone().expect("armed until commit");
+        let fs_err = |e: std::io::Error| write_err(e.to_string());
+        fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(fs_err)?;
+        if self.no_clobber {
+            // A hard link fails if the target appeared meanwhile: no race with other writers.
+            fs::hard_link(&tmp, &path).map_err(|e| match e.kind() {
+                std::io::ErrorKind::AlreadyExists => IoError::Exists { path: path.clone() },
+                _ => fs_err(e),
+            })?;
+        } else {
+            fs::rename(&tmp, &path).map_err(fs_err)?;
+            self.guard.0 = None;
+        }
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            // Make the rename durable; failure here loses nothing already written.
+            let _ = fs::File::open(dir).and_then(|d| d.sync_all());
         }
         Ok(())
     }

@@ -5,6 +5,7 @@ use crate::features::{Branch, EPSILON, Features, log_specular, sanitize};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
 use crate::model::{Architecture, ModelError};
+use crate::rng::SplitMix64;
 use candle_core::Tensor;
 use std::path::{Path, PathBuf};
 
@@ -22,8 +23,79 @@ pub struct Frame {
     pub target_s: [Vec<f32>; 3],
     /// Reference colour.
     pub reference: [Vec<f32>; 3],
-    /// Cumulative distribution of patch positions (importance sampling).
-    cdf: Vec<f64>,
+    /// Patch centres chosen by importance (dart throwing + error diffusion).
+    importance_centres: Vec<(usize, usize)>,
+    /// Patch centres chosen uniformly (the dart-thrown candidates, unpruned).
+    uniform_centres: Vec<(usize, usize)>,
+}
+
+/// Candidate patch centres thrown per frame (SPEC §4: ≈400).
+pub const CANDIDATES: usize = 400;
+/// Centres kept per frame after pruning.
+pub const KEPT: usize = 100;
+/// Share of a candidate's weight that does not depend on importance, so easy regions are
+/// still represented.
+const IMPORTANCE_FLOOR: f32 = 0.1;
+
+/// Up to `n` points over a `w`×`h` frame by dart throwing: uniform darts, each rejected if
+/// closer than a spacing that lets `n` points fit, so the candidates cover the frame evenly.
+pub fn dart_throw(w: usize, h: usize, n: usize, rng: &mut SplitMix64) -> Vec<(usize, usize)> {
+    let spacing = 0.7 * ((w * h) as f64 / n.max(1) as f64).sqrt();
+    let r2 = spacing * spacing;
+    let mut out: Vec<(usize, usize)> = Vec::with_capacity(n);
+    for _ in 0..30 * n {
+        if out.len() == n {
+            break;
+        }
+        let x = (rng.uniform_f64() * w as f64) as usize % w.max(1);
+        let y = (rng.uniform_f64() * h as f64) as usize % h.max(1);
+        let far = out.iter().all(|&(a, b)| {
+            let (dx, dy) = (a as f64 - x as f64, b as f64 - y as f64);
+            dx * dx + dy * dy >= r2
+        });
+        if far {
+            out.push((x, y));
+        }
+    }
+    out
+}
+
+/// Keeps about `keep` of `candidates` with density following `importance` (plus a floor):
+/// error diffusion along a serpentine scan of the candidates, the 1-D analogue of
+/// Floyd–Steinberg dithering, so kept points are spread rather than clumped.
+pub fn error_diffusion(
+    candidates: &[(usize, usize)],
+    importance: &[f32],
+    w: usize,
+    keep: usize,
+) -> Vec<(usize, usize)> {
+    let mut order = candidates.to_vec();
+    // Serpentine over bands of rows: nearby candidates are visited consecutively.
+    let band = ((candidates.len() as f64).sqrt().max(1.0) as usize).max(1);
+    let h = candidates.iter().map(|c| c.1 + 1).max().unwrap_or(1);
+    let row_of = |y: usize| y * band / h;
+    order.sort_by_key(|&(x, y)| {
+        let r = row_of(y);
+        (r, if r % 2 == 0 { x } else { w - x })
+    });
+    let weight = |&(x, y): &(usize, usize)| {
+        IMPORTANCE_FLOOR as f64 + (1.0 - IMPORTANCE_FLOOR as f64) * importance[y * w + x].clamp(0.0, 1.0) as f64
+    };
+    let total: f64 = order.iter().map(weight).sum();
+    if total <= 0.0 {
+        return order.into_iter().take(keep).collect();
+    }
+    let scale = keep as f64 / total;
+    let mut err = 0.0;
+    let mut out = Vec::with_capacity(keep);
+    for c in &order {
+        err += scale * weight(c);
+        if err >= 0.5 {
+            out.push(*c);
+            err -= 1.0;
+        }
+    }
+    out
 }
 
 /// Frames for training and whole held-out scenes for validation.
@@ -32,6 +104,8 @@ pub struct Dataset {
     pub train: Vec<Frame>,
     /// Validation frames (scenes never seen in training).
     pub validation: Vec<Frame>,
+    /// How many frames came from the on-disk cache.
+    pub cached: usize,
 }
 
 /// Errors reading training data.
@@ -106,12 +180,12 @@ impl Frame {
             log_specular(&reference.specular[c].iter().map(|&v| sanitize(v)).collect::<Vec<_>>())
         });
         let imp = importance(noisy, 8);
-        // Mix in uniform so easy regions still appear.
-        let mut acc = 0f64;
-        let cdf = imp.iter().map(|&v| {
-            acc += 0.8 * v as f64 + 0.2;
-            acc
-        });
+        let (w, h) = (noisy.width, noisy.height);
+        // Patch positions depend on the frame only, not on the training seed.
+        let tag = scene.bytes().fold(spp as u64, |a, b| crate::rng::mix(a ^ b as u64));
+        let candidates = dart_throw(w, h, CANDIDATES, &mut SplitMix64(tag));
+        let importance_centres = error_diffusion(&candidates, &imp, w, KEPT);
+        let uniform_centres = candidates.into_iter().take(KEPT).collect();
         Frame {
             scene,
             spp,
@@ -119,29 +193,46 @@ impl Frame {
             target_d,
             target_s,
             reference: std::array::from_fn(|c| reference.color[c].iter().map(|&v| sanitize(v)).collect()),
-            cdf: cdf.collect(),
+            importance_centres,
+            uniform_centres,
         }
     }
 
-    /// A patch's top-left corner for an output of `p`×`p`: importance-sampled when
-    /// `importance`, else uniform. `u` in [0, 1).
+    /// Reassembles a frame from its stored parts (the on-disk cache):
+    /// targets `[d̃, s̃, reference colour]`, centres `[importance, uniform]`.
+    pub(crate) fn from_parts(
+        scene: String,
+        spp: u32,
+        features: Features,
+        [target_d, target_s, reference]: [[Vec<f32>; 3]; 3],
+        [importance_centres, uniform_centres]: [Vec<(usize, usize)>; 2],
+    ) -> Frame {
+        Frame { scene, spp, features, target_d, target_s, reference, importance_centres, uniform_centres }
+    }
+
+    /// A patch's top-left corner for an output of `p`×`p`: one of the frame's chosen centres
+    /// (by importance when `importance`, else uniform). `u` in [0, 1) picks which.
     pub fn patch_origin(&self, p: usize, u: f64, importance: bool) -> (usize, usize) {
         let (w, h) = (self.features.width, self.features.height);
-        let i = if importance {
-            let t = u * self.cdf.last().copied().unwrap_or(0.0);
-            self.cdf.partition_point(|&c| c < t).min(w * h - 1)
-        } else {
-            ((u * (w * h) as f64) as usize).min(w * h - 1)
+        let centres = if importance { &self.importance_centres } else { &self.uniform_centres };
+        let (cx, cy) = match centres.len() {
+            0 => (((u * w as f64) as usize).min(w - 1), h / 2),
+            n => centres[((u * n as f64) as usize).min(n - 1)],
         };
-        let (cx, cy) = (i % w, i / w);
         (cx.saturating_sub(p / 2).min(w.saturating_sub(p)), cy.saturating_sub(p / 2).min(h.saturating_sub(p)))
+    }
+
+    /// The patch centres chosen for training (importance or uniform).
+    pub fn centres(&self, importance: bool) -> &[(usize, usize)] {
+        if importance { &self.importance_centres } else { &self.uniform_centres }
     }
 }
 
 impl Dataset {
     /// Loads the frames of a `kpcn dataset` folder; every `holdout_every`-th scene (in name
-    /// order) is held out whole for validation.
-    pub fn load(dir: &Path, holdout_every: usize) -> Result<Dataset, DataError> {
+    /// order) is held out whole for validation. With `cache`, preprocessed frames are read
+    /// from and written to `DIR/cache/` (see [`super::cache`]).
+    pub fn load(dir: &Path, holdout_every: usize, cache: bool) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.csv");
         let text = std::fs::read_to_string(&path)
             .map_err(|e| DataError::Manifest { path: path.clone(), msg: e.to_string() })?;
@@ -166,14 +257,31 @@ impl Dataset {
         } else {
             scenes.iter().skip(holdout_every - 1).step_by(holdout_every.max(1)).collect()
         };
-        let mut data = Dataset { train: Vec::new(), validation: Vec::new() };
+        let mut data = Dataset { train: Vec::new(), validation: Vec::new(), cached: 0 };
         let mut reference_cache: Option<(PathBuf, KpcnInputs)> = None;
         for (scene, spp, noisy, reference) in rows {
-            if reference_cache.as_ref().is_none_or(|(p, _)| *p != reference) {
-                reference_cache = Some((reference.clone(), inputs(&reference)?));
-            }
-            let r = &reference_cache.as_ref().expect("just set").1;
-            let frame = Frame::new(scene.clone(), spp, &inputs(&noisy)?, r);
+            let key = cache.then(|| super::cache::key(&noisy, &reference)).flatten();
+            let stem = noisy.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let cache_path = dir.join("cache").join(format!("{stem}.safetensors"));
+            let cached = key.as_ref().and_then(|k| super::cache::load(&cache_path, k));
+            let frame = match cached {
+                Some(f) => {
+                    data.cached += 1;
+                    f
+                }
+                None => {
+                    if reference_cache.as_ref().is_none_or(|(p, _)| *p != reference) {
+                        reference_cache = Some((reference.clone(), inputs(&reference)?));
+                    }
+                    let r = &reference_cache.as_ref().expect("just set").1;
+                    let f = Frame::new(scene.clone(), spp, &inputs(&noisy)?, r);
+                    if let Some(k) = &key {
+                        // A read-only dataset still trains, only without the speed-up.
+                        let _ = super::cache::store(&cache_path, k, &f);
+                    }
+                    f
+                }
+            };
             if held.contains(&&scene) { data.validation.push(frame) } else { data.train.push(frame) }
         }
         Ok(data)
@@ -241,4 +349,45 @@ pub fn batch(
         albedo: t(albedo, (n, 3, p, p))?,
         reference: t(reference, (n, 3, p, p))?,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn darts_keep_their_spacing_and_fill_the_frame() {
+        let (w, h) = (320, 180);
+        let pts = dart_throw(w, h, CANDIDATES, &mut SplitMix64(7));
+        assert_eq!(pts.len(), CANDIDATES);
+        let spacing = 0.7 * ((w * h) as f64 / CANDIDATES as f64).sqrt();
+        for (i, a) in pts.iter().enumerate() {
+            assert!(a.0 < w && a.1 < h);
+            for b in &pts[..i] {
+                let d = ((a.0 as f64 - b.0 as f64).powi(2) + (a.1 as f64 - b.1 as f64).powi(2)).sqrt();
+                assert!(d >= spacing, "{a:?} {b:?} {d}");
+            }
+        }
+        // Every quarter of the frame gets about a quarter of the darts.
+        let left_top = pts.iter().filter(|p| p.0 < w / 2 && p.1 < h / 2).count();
+        assert!((70..=130).contains(&left_top), "{left_top}");
+    }
+
+    #[test]
+    fn error_diffusion_follows_importance_and_keeps_easy_regions() {
+        let (w, h) = (320, 180);
+        // The right half is hard (importance 1), the left half easy (0).
+        let imp: Vec<f32> = (0..w * h).map(|i| if i % w >= w / 2 { 1.0 } else { 0.0 }).collect();
+        let cand = dart_throw(w, h, CANDIDATES, &mut SplitMix64(3));
+        let kept = error_diffusion(&cand, &imp, w, KEPT);
+        assert!((KEPT - 2..=KEPT + 2).contains(&kept.len()), "{}", kept.len());
+        let hard = kept.iter().filter(|p| p.0 >= w / 2).count();
+        let easy = kept.len() - hard;
+        // Expected split 1.0 : 0.1 of the weight → about 91 : 9.
+        assert!(hard > 80 && easy >= 4, "hard {hard} easy {easy}");
+        // Uniform importance keeps an even spread.
+        let flat = error_diffusion(&cand, &vec![0.5; w * h], w, KEPT);
+        let right = flat.iter().filter(|p| p.0 >= w / 2).count();
+        assert!((35..=65).contains(&right), "{right}");
+    }
 }

@@ -5,6 +5,7 @@
 //! The kernel application is composed from candle ops here (`apply_kernels`), so candle's
 //! autograd differentiates it; `kernel::apply` is the fast inference version.
 
+pub mod cache;
 pub mod data;
 
 use crate::features::EPSILON;

@@ -1,0 +1,227 @@
+//! Denoising a layered EXR file to a new one in bands of rows, so memory stays bounded
+//! whatever the frame size: a 4K frame is never held whole.
+//!
+//! Each band is read with [`Denoiser::halo`] context rows above and below, preprocessed
+//! with the whole frame's depth scale (one cheap pass over the depth channel first), and
+//! its inner rows are denoised and written straight after a copy of the input channels.
+//! The result equals denoising the whole frame at once (tested bit for bit).
+
+use super::{DenoiseError, Denoised, Denoiser, Progress};
+use crate::features::{self, Features};
+use crate::io::layout::{Layout, Mapping, Quantity};
+use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
+use crate::tile;
+use std::path::{Path, PathBuf};
+
+/// Working floats per pixel of a band: every channel of a layered EXR (≈40), the
+/// network inputs (21) and the features (25), with room to spare.
+const BAND_FLOATS_PER_PIXEL: usize = 120;
+
+/// What to write.
+#[derive(Debug, Clone)]
+pub struct FileOptions {
+    /// Name of the denoised layer (`NAME.R/G/B`).
+    pub layer: String,
+    /// Also write `NAME_diffuse` and `NAME_specular`, which add up to `NAME`.
+    pub aovs: bool,
+    /// Write only the new layers (and the metadata), not a copy of the input channels.
+    pub separate: bool,
+    /// Compression and overwrite policy.
+    pub write: WriteOptions,
+    /// Rows per band (testing; normally derived from the denoiser's memory budget).
+    pub band_rows: Option<usize>,
+}
+
+impl Default for FileOptions {
+    fn default() -> Self {
+        FileOptions {
+            layer: "denoised".into(),
+            aovs: false,
+            separate: false,
+            write: WriteOptions::default(),
+            band_rows: None,
+        }
+    }
+}
+
+/// Errors of [`FileJob`].
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    /// Reading, mapping or writing failed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// The denoiser failed or was cancelled.
+    #[error("{}: {source}", path.display())]
+    Denoise {
+        /// The input file.
+        path: PathBuf,
+        /// Why.
+        source: DenoiseError,
+    },
+}
+
+/// One input file, opened and mapped, ready to denoise.
+pub struct FileJob {
+    reader: FrameReader,
+    mapping: Mapping,
+}
+
+/// Where an output channel comes from.
+enum Src {
+    Input(String),
+    New(usize),
+}
+
+impl FileJob {
+    /// Opens `input` and maps its channels (`layout`, or detected). Fails now, before any
+    /// output exists, when a required input is missing.
+    pub fn open(input: &Path, layout: Option<Layout>) -> Result<FileJob, FileError> {
+        let reader = FrameReader::open(input)?;
+        let mapping = Mapping::new(reader.channel_names(), layout);
+        let missing = mapping.missing_required();
+        if !missing.is_empty() {
+            return Err(IoError::MissingChannels {
+                path: input.into(),
+                layout: mapping.layout.to_string(),
+                missing,
+                hint: mapping.hint().into(),
+            }
+            .into());
+        }
+        Ok(FileJob { reader, mapping })
+    }
+
+    /// How the file's channels map to the network's inputs.
+    pub fn mapping(&self) -> &Mapping {
+        &self.mapping
+    }
+
+    /// Width and height.
+    pub fn size(&self) -> (usize, usize) {
+        (self.reader.header().width(), self.reader.header().height())
+    }
+
+    /// Rows per band for this frame and denoiser.
+    pub fn band_rows(&self, denoiser: &Denoiser, opts: &FileOptions) -> usize {
+        let (w, h) = self.size();
+        let budget = denoiser.options.max_memory_mb << 20;
+        let by_budget = budget / (w.max(1) * 4 * BAND_FLOATS_PER_PIXEL);
+        opts.band_rows.unwrap_or(by_budget.max(16)).clamp(1, h.max(1))
+    }
+
+    /// Denoises into `output` (atomically: nothing appears there on failure or cancel).
+    /// `progress` counts tiles over the whole frame; returning `false` cancels.
+    pub fn run(
+        mut self,
+        denoiser: &Denoiser,
+        output: &Path,
+        opts: &FileOptions,
+        progress: &(dyn Fn(Progress) -> bool + Sync),
+    ) -> Result<(), FileError> {
+        let (w, h) = self.size();
+        let path = self.reader.header().display_path();
+        if w == 0 || h == 0 {
+            return Err(FileError::Denoise { path, source: DenoiseError::Empty });
+        }
+        let band = self.band_rows(denoiser, opts);
+        let bands: Vec<(usize, usize)> = (0..h).step_by(band).map(|a| (a, (a + band).min(h))).collect();
+        let needed = self.mapping.channels();
+        let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
+
+        // The depth scale is a whole-frame statistic: one pass over the depth channel.
+        let max_depth = if bands.len() == 1 { None } else { Some(self.max_depth(band)?) };
+
+        // Output channels: the input's (a same-named one is replaced in place), then the new ones.
+        let new_names = new_layer_names(&opts.layer, opts.aovs);
+        let mut channels: Vec<(String, SampleFormat, Src)> = Vec::new();
+        if !opts.separate {
+            for (name, format) in self.reader.channel_formats() {
+                match new_names.iter().position(|n| n == name) {
+                    Some(k) => channels.push((name.into(), SampleFormat::Float, Src::New(k))),
+                    None => channels.push((name.into(), format, Src::Input(name.into()))),
+                }
+            }
+        }
+        for (k, n) in new_names.iter().enumerate() {
+            if !channels.iter().any(|(name, ..)| name == n) {
+                channels.push((n.clone(), SampleFormat::Float, Src::New(k)));
+            }
+        }
+        let mut header = self.reader.header().clone();
+        header.set_attribute(Attribute::string("kpcn:model", &denoiser.model().description));
+        header.set_attribute(Attribute::string("kpcn:layout", self.mapping.layout.name()));
+        let spec: Vec<(&str, SampleFormat)> = channels.iter().map(|(n, f, _)| (n.as_str(), *f)).collect();
+        let mut writer = FrameWriter::create(output, &header, &[("", spec)], &opts.write)?;
+
+        let halo = denoiser.halo();
+        let tiles_in = |a: usize, b: usize| tile::plan(w, b - a, denoiser.tile_size(w, b - a)).len();
+        let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
+        let mut done = 0;
+        for &(a, b) in &bands {
+            let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
+            // Context rows need only the network inputs; the copy needs every channel.
+            let names = if opts.separate { Some(needed.as_slice()) } else { None };
+            let fb = self.reader.read_band(names, c0, c1)?;
+            let inputs = self.mapping.extract(&fb)?;
+            let f = match max_depth {
+                Some(m) => Features::with_max_depth(&inputs, m),
+                None => Features::new(&inputs),
+            };
+            drop(inputs);
+            let step = |p: Progress| progress(Progress { done: done + p.done, total });
+            let d = denoiser
+                .denoise_rows(&f, a - c0..b - c0, &step)
+                .map_err(|source| FileError::Denoise { path: path.clone(), source })?;
+            drop(f);
+            done += tiles_in(a, b);
+            let new = new_planes(&d, opts.aovs);
+            let inner = (a - c0) * w..(b - c0) * w;
+            let planes: Vec<&[f32]> = channels
+                .iter()
+                .map(|(_, _, src)| match src {
+                    Src::New(k) => new[*k],
+                    Src::Input(n) => &fb.channel(n).expect("read with every channel")[inner.clone()],
+                })
+                .collect();
+            writer.write_band(&planes, b - a)?;
+        }
+        writer.commit()?;
+        Ok(())
+    }
+
+    /// The largest finite depth of the whole frame, reading only the depth channels.
+    fn max_depth(&mut self, band: usize) -> Result<f32, FileError> {
+        let entry = self.mapping.entry_for(Quantity::Depth).clone();
+        let names = entry.mean_channels();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let h = self.size().1;
+        let mut m = 0f32;
+        for a in (0..h).step_by(band) {
+            let fb: FrameBuffers = self.reader.read_band(Some(&names), a, a + band)?;
+            if let Some(depth) = entry.eval_mean(&fb).and_then(|mut v| v.pop()) {
+                m = m.max(features::max_depth(&depth));
+            }
+        }
+        Ok(m)
+    }
+}
+
+/// `NAME.R/G/B`, then with `aovs` `NAME_diffuse.*` and `NAME_specular.*`.
+fn new_layer_names(layer: &str, aovs: bool) -> Vec<String> {
+    let mut layers = vec![layer.to_string()];
+    if aovs {
+        layers.push(format!("{layer}_diffuse"));
+        layers.push(format!("{layer}_specular"));
+    }
+    layers.iter().flat_map(|l| ["R", "G", "B"].map(|c| format!("{l}.{c}"))).collect()
+}
+
+/// The planes of [`new_layer_names`], in that order.
+fn new_planes(d: &Denoised, aovs: bool) -> Vec<&[f32]> {
+    let mut layers = vec![&d.color];
+    if aovs {
+        layers.push(&d.diffuse);
+        layers.push(&d.specular);
+    }
+    layers.iter().flat_map(|l| l.iter().map(Vec::as_slice)).collect()
+}
