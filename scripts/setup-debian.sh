@@ -3,7 +3,8 @@
 # missing and touches nothing (not even apt's lists) when everything is present.
 set -euo pipefail
 
-packages=(libopenimageio-dev libclang-dev pkg-config g++)
+# fonts-dejavu-core: the text of training and study plots.
+packages=(libopenimageio-dev libclang-dev pkg-config g++ fonts-dejavu-core)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -4,6 +4,12 @@ use clap::Parser;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    // Rust ignores SIGPIPE, turning `kpcn info f.exr | head` into a panic; a CLI should
+    // just stop, like other Unix tools.
+    // SAFETY: called first thing, before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = kpcn::cli::Cli::parse();
     match kpcn::cli::run(cli) {
         Ok(()) => ExitCode::SUCCESS,

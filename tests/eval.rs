@@ -59,3 +59,32 @@ fn eval_prints_json_and_writes_error_maps() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("is 8x8 but the reference"));
 }
+
+#[test]
+fn a_tiny_study_writes_its_csv_summary_and_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let args = ["study", "-o", out.to_str().unwrap(), "--families", "cornell,product", "--spp", "2,6"];
+    let rest = ["--reference-spp", "32", "--resolution", "40x24", "--oidn", "off", "--threads", "2", "-q"];
+    let o = Command::new(env!("CARGO_BIN_EXE_kpcn")).args(args).args(rest).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    // 2 scenes × 2 sample counts × (Monte Carlo + the default model).
+    assert_eq!(csv.lines().count(), 1 + 8, "{csv}");
+    for line in csv.lines().skip(1) {
+        let c: Vec<&str> = line.split(',').collect();
+        let relmse: f64 = c[6].parse().unwrap();
+        assert!(relmse.is_finite() && relmse > 0.0, "{line}");
+    }
+    // More samples, less Monte Carlo error; the denoiser beats the noisy input.
+    let err = |scene: &str, spp: &str, m: &str| -> f64 {
+        let l = csv.lines().find(|l| l.starts_with(&format!("{scene},{spp},{m},"))).unwrap();
+        l.split(',').nth(6).unwrap().parse().unwrap()
+    };
+    for s in ["cornell-0000", "product-0000"] {
+        assert!(err(s, "2", "kpcn-default") < err(s, "2", "monte-carlo"), "{csv}");
+    }
+    let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(md.contains("| kpcn-default | 319 k |"), "{md}");
+    assert!(out.join("cornell-0000.png").is_file() && out.join("product-0000.png").is_file());
+}

@@ -1,5 +1,6 @@
 //! `kpcn eval`: error of images against a reference.
 
+use crate::eval::plot::write_rgb_png;
 use crate::eval::{Metrics, false_colour, metrics, relmse_map};
 use crate::io::FrameBuffers;
 use anyhow::{Context, bail};
@@ -61,14 +62,8 @@ fn planes<'a>(fb: &'a FrameBuffers, names: &[String; 3]) -> [&'a [f32]; 3] {
 }
 
 fn write_map(path: &Path, map: &[f32], w: usize, h: usize) -> anyhow::Result<()> {
-    let file = std::fs::File::create(path).with_context(|| format!("{}: cannot create", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
     let pixels: Vec<u8> = map.iter().flat_map(|&e| false_colour(e)).collect();
-    enc.write_header()
-        .and_then(|mut wr| wr.write_image_data(&pixels))
-        .with_context(|| format!("{}: cannot write", path.display()))
+    write_rgb_png(path, w, h, &pixels).with_context(|| format!("{}: cannot write", path.display()))
 }
 
 /// Runs `kpcn eval`.

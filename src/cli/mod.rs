@@ -7,6 +7,7 @@ mod info;
 mod model;
 mod render;
 mod sequence;
+mod study;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -73,6 +74,18 @@ pub enum Command {
         after_help = "Example:\n  kpcn dataset --count 4 -o data/ && kpcn train --data data/ -o run/ --steps 2000\n  kpcn denoise frame.exr -o den.exr --model run/model.safetensors"
     )]
     Train(train::TrainArgs),
+    /// Plot training runs: one run's smoothed losses and validation relMSE, or several runs'
+    /// validation relMSE in one chart (e.g. KPCN against DPCN on the same data and budget).
+    #[command(after_help = "Example:\n  kpcn curves runs/kpcn runs/dpcn -o kpcn-vs-dpcn.png")]
+    Curves(train::CurvesArgs),
+    /// What accuracy costs in time: render simulator scenes at rising sample counts, denoise
+    /// each frame with every model (and OIDN when `pyoidn` is installed), and write a CSV,
+    /// one log–log error-vs-seconds plot per scene and a markdown summary (time to reach
+    /// Monte Carlo's best error, speed-up, and each model's FLOP/pixel, s/MPix, peak RSS).
+    #[command(
+        after_help = "Examples:\n  kpcn study -o study/\n  kpcn study -o study/ --families cornell,glass --spp 2,8,32 --models default,run/model.safetensors"
+    )]
+    Study(study::StudyArgs),
     /// Inspect model files or write an untrained one.
     Model(model::ModelArgs),
 }
@@ -88,6 +101,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(args) => render::run_dataset(&args),
         Command::Model(args) => model::run(&args),
         Command::Train(args) => train::run(&args),
+        Command::Curves(args) => train::run_curves(&args),
+        Command::Study(args) => study::run(&args),
     }
 }
 

@@ -1,14 +1,16 @@
 //! `kpcn train`: train KPCN/DPCN weights on a `kpcn dataset` folder.
 
 use super::model::{KindArg, Preset};
+use crate::eval::plot::write_png;
 use crate::model::{Architecture, Kind, Model};
+use crate::train::curves;
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -89,6 +91,18 @@ pub enum Patches {
 
 fn fmt(v: f32) -> String {
     if v.is_nan() { String::new() } else { format!("{v:.6}") }
+}
+
+/// Redraws DIR/training.png from DIR/log.csv. A plot is a convenience: failing to draw
+/// one (no font) is said once and never stops training.
+fn plot(dir: &Path, bar: &ProgressBar) {
+    static WARNED: std::sync::Once = std::sync::Once::new();
+    let text = std::fs::read_to_string(dir.join("log.csv")).unwrap_or_default();
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let chart = curves::chart(&[(name, curves::parse(&text))]);
+    if let Err(e) = write_png(&chart, &dir.join("training.png"), 900, 540) {
+        WARNED.call_once(|| bar.suspend(|| eprintln!("kpcn train: warning: no training.png: {e}")));
+    }
 }
 
 /// Runs `kpcn train`.
@@ -211,11 +225,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             )?;
             if row.step % opts.checkpoint_every == 0 {
                 trainer.save(&checkpoint)?;
+                plot(&args.output, &bar);
             }
         }
         Ok(())
     })?;
     trainer.save(&checkpoint)?;
+    plot(&args.output, &bar);
     bar.finish_and_clear();
     if stop.load(Ordering::SeqCst) {
         eprintln!("kpcn train: interrupted at step {}; checkpoint saved — continue with --resume", trainer.step);
@@ -247,5 +263,35 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let out = args.output.join("model.safetensors");
     model.save(&out)?;
     println!("{} ({} steps in {:.0} s this run)", out.display(), trainer.step, started.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// Arguments of `kpcn curves`.
+#[derive(Debug, Args)]
+pub struct CurvesArgs {
+    /// Training run folders (or their log.csv files).
+    #[arg(required = true, value_name = "RUN")]
+    pub runs: Vec<PathBuf>,
+    /// Output PNG.
+    #[arg(short, long, value_name = "PNG")]
+    pub output: PathBuf,
+}
+
+/// Runs `kpcn curves`: one chart of several training runs' validation relMSE (or one
+/// run's losses too), e.g. KPCN against DPCN on the same data and budget.
+pub fn run_curves(args: &CurvesArgs) -> anyhow::Result<()> {
+    let mut runs = Vec::new();
+    for r in &args.runs {
+        let (dir, log) =
+            if r.is_dir() { (r.clone(), r.join("log.csv")) } else { (r.parent().unwrap_or(r).into(), r.clone()) };
+        let text = std::fs::read_to_string(&log).with_context(|| {
+            format!("{}: cannot read — give a `kpcn train` output folder or its log.csv", log.display())
+        })?;
+        let name =
+            dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| dir.display().to_string());
+        runs.push((name, curves::parse(&text)));
+    }
+    write_png(&curves::chart(&runs), &args.output, 900, 540)?;
+    println!("{}", args.output.display());
     Ok(())
 }

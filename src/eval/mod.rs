@@ -3,6 +3,9 @@
 //! with `v ≥ 0`; SSIM per RGB channel with an 11×11 Gaussian window (σ 1.5), K1 0.01,
 //! K2 0.03, over the valid region, averaged.
 
+pub mod plot;
+pub mod study;
+
 /// RGB planes of one image.
 pub type Rgb<'a> = [&'a [f32]; 3];
 

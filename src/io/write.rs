@@ -175,7 +175,9 @@ impl FrameWriter {
         let (w, nch) = (self.width, self.nchannels[self.part]);
         let n = rows * w;
         if planes.len() != nch || planes.iter().any(|p| p.len() != n) {
-            return Err(self.err(format!("a band of {} channels × {n} samples; the part has {nch} channels", planes.len())));
+            return Err(
+                self.err(format!("a band of {} channels × {n} samples; the part has {nch} channels", planes.len()))
+            );
         }
         let out = self.out.as_mut().expect("open until commit");
         for r0 in (0..rows).step_by(ROW_BAND) {

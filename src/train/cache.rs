@@ -37,8 +37,10 @@ fn planes(f: &Frame) -> Vec<(String, &[f32])> {
         ("target_s", &f.target_s),
         ("reference", &f.reference),
     ];
-    let mut v: Vec<(String, &[f32])> =
-        rgb.iter().flat_map(|(n, p)| p.iter().enumerate().map(move |(c, p)| (format!("{n}.{c}"), p.as_slice()))).collect();
+    let mut v: Vec<(String, &[f32])> = rgb
+        .iter()
+        .flat_map(|(n, p)| p.iter().enumerate().map(move |(c, p)| (format!("{n}.{c}"), p.as_slice())))
+        .collect();
     let scalar: [(&str, &Vec<f32>); 6] = [
         ("depth", &e.depth),
         ("d_variance", &e.d_variance),

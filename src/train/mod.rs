@@ -6,6 +6,7 @@
 //! autograd differentiates it; `kernel::apply` is the fast inference version.
 
 pub mod cache;
+pub mod curves;
 pub mod data;
 
 use crate::features::EPSILON;

@@ -1,0 +1,94 @@
+//! Training curves from `log.csv`: losses (smoothed) and validation relMSE against step,
+//! as a [`Chart`] for [`crate::eval::plot::write_png`].
+
+use crate::eval::plot::{Chart, Series};
+
+/// Steps averaged for a smoothed loss curve: per-step losses of small batches are noisy.
+const SMOOTHING: usize = 25;
+
+/// One run's log, by column.
+#[derive(Debug, Clone, Default)]
+pub struct Log {
+    /// (step, diffuse loss) in phase 1.
+    pub diffuse: Vec<(f64, f64)>,
+    /// (step, specular loss) in phase 1.
+    pub specular: Vec<(f64, f64)>,
+    /// (step, combined loss) in phase 2.
+    pub combined: Vec<(f64, f64)>,
+    /// (step, validation relMSE).
+    pub validation: Vec<(f64, f64)>,
+}
+
+/// Parses a `kpcn train` log (`step,phase,loss_diffuse,loss_specular,loss_combined,
+/// validation_relmse,patches_per_second`); malformed rows are skipped.
+pub fn parse(text: &str) -> Log {
+    let mut log = Log::default();
+    for line in text.lines().skip(1) {
+        let c: Vec<&str> = line.split(',').collect();
+        let Some(step) = c.first().and_then(|s| s.parse::<f64>().ok()) else { continue };
+        let num = |i: usize| c.get(i).and_then(|s| s.parse::<f64>().ok()).filter(|v| v.is_finite());
+        for (i, out) in
+            [(2, &mut log.diffuse), (3, &mut log.specular), (4, &mut log.combined), (5, &mut log.validation)]
+        {
+            if let Some(v) = num(i) {
+                out.push((step, v));
+            }
+        }
+    }
+    log
+}
+
+/// Running mean over `n` points (centred on the last), keeping the steps.
+fn smooth(p: &[(f64, f64)], n: usize) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(p.len() / n + 1);
+    for chunk in p.chunks(n) {
+        let mean = chunk.iter().map(|q| q.1).sum::<f64>() / chunk.len() as f64;
+        out.push((chunk[chunk.len() - 1].0, mean));
+    }
+    out
+}
+
+/// A chart of one or more named runs. With several runs only validation relMSE is drawn
+/// (the comparable quantity); a single run also shows its smoothed losses.
+pub fn chart(runs: &[(String, Log)]) -> Chart {
+    let mut series = Vec::new();
+    for (name, log) in runs {
+        let prefix = if runs.len() > 1 { format!("{name}: ") } else { String::new() };
+        series.push(Series {
+            name: format!("{prefix}validation relMSE"),
+            points: log.validation.clone(),
+            dashed: false,
+        });
+        if runs.len() == 1 {
+            for (what, p) in [("diffuse", &log.diffuse), ("specular", &log.specular), ("combined", &log.combined)] {
+                if !p.is_empty() {
+                    let name = format!("{what} L1 (mean of {SMOOTHING} steps)");
+                    series.push(Series { name, points: smooth(p, SMOOTHING), dashed: true });
+                }
+            }
+        }
+    }
+    let title = match runs {
+        [(name, _)] => format!("kpcn train: {name}"),
+        _ => "kpcn train: validation relMSE by step".to_string(),
+    };
+    Chart { title, x_label: "step".into(), y_label: "loss / relMSE".into(), log_x: false, log_y: true, series }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn logs_parse_by_column_and_smooth() {
+        let text = "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second\n\
+                    1,1,0.5,0.1,,,2.0\n2,1,0.3,0.1,,0.04,2.0\nbad row\n3,2,,,0.2,0.03,2.0\n";
+        let log = parse(text);
+        assert_eq!(log.diffuse, vec![(1.0, 0.5), (2.0, 0.3)]);
+        assert_eq!(log.combined, vec![(3.0, 0.2)]);
+        assert_eq!(log.validation, vec![(2.0, 0.04), (3.0, 0.03)]);
+        assert_eq!(smooth(&log.diffuse, 2), vec![(2.0, 0.4)]);
+        assert_eq!(chart(&[("a".into(), log.clone())]).series.len(), 4);
+        assert_eq!(chart(&[("a".into(), log.clone()), ("b".into(), log)]).series.len(), 2);
+    }
+}
