@@ -11,7 +11,11 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = kpcn::cli::Cli::parse();
-    match kpcn::cli::run(cli) {
+    let result = kpcn::cli::run(cli);
+    if std::env::var_os(kpcn::cli::PEAK_RSS_ENV).is_some() {
+        eprintln!("peak-rss-kb {}", kpcn::cli::peak_rss_kb().unwrap_or(0));
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             if e.downcast_ref::<kpcn::cli::Reported>().is_none() {

@@ -86,5 +86,9 @@ fn a_tiny_study_writes_its_csv_summary_and_plots() {
     }
     let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(md.contains("| kpcn-default | 319 k |"), "{md}");
+    // The child's own peak memory, not the study process's (Linux's wait4 would mix them).
+    let row = md.lines().find(|l| l.starts_with("| kpcn-default | 319 k |")).unwrap();
+    let mb: f64 = row.split('|').nth(4).unwrap().trim().trim_end_matches(" MB").parse().unwrap();
+    assert!((20.0..1000.0).contains(&mb), "{row}");
     assert!(out.join("cornell-0000.png").is_file() && out.join("product-0000.png").is_file());
 }

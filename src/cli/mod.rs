@@ -90,6 +90,16 @@ pub enum Command {
     Model(model::ModelArgs),
 }
 
+/// When set, `kpcn` prints `peak-rss-kb N` (its VmHWM) to stderr on exit: how `kpcn study`
+/// measures a child's peak memory.
+pub const PEAK_RSS_ENV: &str = "KPCN_REPORT_PEAK_RSS";
+
+/// This process's peak resident memory in kB (VmHWM), where /proc has it.
+pub fn peak_rss_kb() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status.lines().find_map(|l| l.strip_prefix("VmHWM:")?.trim().strip_suffix("kB")?.trim().parse().ok())
+}
+
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {

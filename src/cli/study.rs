@@ -2,6 +2,7 @@
 //! counts, denoises every frame with each model (and OIDN when `pyoidn` is installed, as an
 //! external peer), and writes a CSV, one log–log plot per scene and a markdown summary.
 
+use super::PEAK_RSS_ENV;
 use crate::denoise::{Denoiser, Options};
 use crate::eval::plot::write_png;
 use crate::eval::study::{self, Cost, MONTE_CARLO, Row};
@@ -30,7 +31,7 @@ pub struct StudyArgs {
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub seed: u64,
     /// Sample counts, each rendered (and timed) on its own; each ≥ 2.
-    #[arg(long, default_value = "2,4,8,16,32", value_name = "N,N,…")]
+    #[arg(long, default_value = "2,4,8,16,32,64,128,256", value_name = "N,N,…")]
     pub spp: String,
     /// Samples of the reference render (not timed).
     #[arg(long, default_value_t = 1024, value_name = "N")]
@@ -81,6 +82,8 @@ s = time.perf_counter()
 res = pyoidn.denoise(color, albedo, normal, hdr=True, quality="high")
 print(time.perf_counter() - s)
 np.ascontiguousarray(res, dtype=np.float32).tofile(out)
+hwm = [l.split()[1] for l in open("/proc/self/status") if l.startswith("VmHWM:")]
+print("peak-rss-kb", hwm[0] if hwm else 0, file=sys.stderr)
 "#;
 
 /// A child process's standard output and peak RSS in MB.
@@ -89,30 +92,20 @@ struct Measured {
     peak_mb: f64,
 }
 
-/// Runs `cmd` to completion and reads its own peak RSS from `wait4`'s rusage (per child,
-/// unlike `getrusage(RUSAGE_CHILDREN)`, which keeps the largest of all children).
+/// Runs `cmd` to completion; the child reports its own peak RSS on stderr
+/// (`peak-rss-kb N`, from /proc/self/status VmHWM). `wait4`'s rusage cannot be used: on
+/// Linux a child's maxrss includes its parent's peak at the time of the fork/exec.
 fn run_measured(cmd: &mut Command) -> anyhow::Result<Measured> {
-    use std::io::Read;
-    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().context("cannot start")?;
-    let (mut stdout, mut stderr) = (String::new(), String::new());
-    // Small outputs only (a number, or errors), so reading one pipe after the other is safe.
-    if let Some(mut s) = child.stdout.take() {
-        s.read_to_string(&mut stdout)?;
-    }
-    if let Some(mut s) = child.stderr.take() {
-        s.read_to_string(&mut stderr)?;
-    }
-    let pid = child.id() as libc::pid_t;
-    let mut status = 0;
-    // SAFETY: rusage is plain data the kernel fills; we reap our own child exactly once.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    if unsafe { libc::wait4(pid, &mut status, 0, &mut usage) } != pid {
-        bail!("wait4 failed: {}", std::io::Error::last_os_error());
-    }
-    if !libc::WIFEXITED(status) || libc::WEXITSTATUS(status) != 0 {
+    let out = cmd.env(PEAK_RSS_ENV, "1").output().context("cannot start")?;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success() {
         bail!("failed: {}", stderr.trim());
     }
-    Ok(Measured { stdout, peak_mb: usage.ru_maxrss as f64 / 1024.0 })
+    let kb: f64 = stderr
+        .lines()
+        .find_map(|l| l.strip_prefix("peak-rss-kb ").and_then(|v| v.trim().parse().ok()))
+        .context("the child reported no peak-rss-kb line")?;
+    Ok(Measured { stdout: String::from_utf8_lossy(&out.stdout).into_owned(), peak_mb: kb / 1024.0 })
 }
 
 fn parse_list<T: std::str::FromStr>(s: &str, what: &str) -> anyhow::Result<Vec<T>> {
