@@ -78,16 +78,7 @@ impl FileJob {
     pub fn open(input: &Path, layout: Option<Layout>) -> Result<FileJob, FileError> {
         let reader = FrameReader::open(input)?;
         let mapping = Mapping::new(reader.channel_names(), layout);
-        let missing = mapping.missing_required();
-        if !missing.is_empty() {
-            return Err(IoError::MissingChannels {
-                path: input.into(),
-                layout: mapping.layout.to_string(),
-                missing,
-                hint: mapping.hint().into(),
-            }
-            .into());
-        }
+        mapping.check(input)?;
         Ok(FileJob { reader, mapping })
     }
 

@@ -9,6 +9,7 @@ use super::error::IoError;
 use super::frame::FrameBuffers;
 use std::collections::HashSet;
 use std::fmt;
+use std::path::Path;
 use std::str::FromStr;
 
 /// A renderer's naming convention for the KPCN inputs.
@@ -541,17 +542,24 @@ impl Mapping {
         self.layout.hint()
     }
 
+    /// An error naming `path`, the layout, every missing required channel and what to do,
+    /// when the network cannot run on this mapping.
+    pub fn check(&self, path: &Path) -> Result<(), IoError> {
+        let missing = self.missing_required();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        Err(IoError::MissingChannels {
+            path: path.into(),
+            layout: self.layout.to_string(),
+            missing,
+            hint: self.hint().into(),
+        })
+    }
+
     /// Builds the network's inputs from a frame, estimating absent variances.
     pub fn extract(&self, fb: &FrameBuffers) -> Result<KpcnInputs, IoError> {
-        let missing = self.missing_required();
-        if !missing.is_empty() {
-            return Err(IoError::MissingChannels {
-                path: fb.display_path(),
-                layout: self.layout.to_string(),
-                missing,
-                hint: self.hint().into(),
-            });
-        }
+        self.check(&fb.display_path())?;
         let (w, h) = (fb.width(), fb.height());
         let mean = |q: Quantity| self.entry_for(q).mean.eval(fb);
         let rgb = |q: Quantity| -> [Vec<f32>; 3] {
