@@ -13,17 +13,22 @@ trap 'rm -rf "$work"' EXIT
 cargo build --release --quiet
 kpcn=target/release/kpcn
 
-printf '%-9s %4s | %-21s | %-21s | %-21s | %s\n' scene spp "noisy relMSE/PSNR" "OIDN relMSE/PSNR" "kpcn relMSE/PSNR" "kpcn s"
+row() { # relmse psnr one_minus_ssim → "0.01234 / 33.21 / 0.1234"
+    awk -F, '{printf "%.5f / %.2f / %.4f", $1, $2, $3}' <<<"$1"
+}
+baseline() { # scene spp method → relmse,psnr,1-ssim
+    grep "^$1,$2,$3," "$dev/baseline.csv" | awk -F, '{printf "%s,%s,%s", $4, $5, 1 - $6}'
+}
+printf '%-9s %4s | %-28s | %-28s | %-28s | %s\n' scene spp "noisy relMSE/PSNR/1-SSIM" \
+    "OIDN relMSE/PSNR/1-SSIM" "kpcn relMSE/PSNR/1-SSIM" "kpcn s"
 for scene in interior spheres; do
     for spp in 4 16 64; do
         f=$(printf '%s/%s-%05dspp.exr' "$dev" "$scene" "$spp")
         start=$(date +%s%N)
         $kpcn denoise "$f" -o "$work/den.exr" --model "$model" -q --threads 2
         ms=$((($(date +%s%N) - start) / 1000000))
-        k=$($kpcn eval -r "$dev/$scene-ref.exr" "$work/den.exr" --format csv | tail -1 | cut -d, -f3,4)
-        noisy=$(grep "^$scene,$spp,noisy," "$dev/baseline.csv" | cut -d, -f4,5)
-        oidn=$(grep "^$scene,$spp,oidn," "$dev/baseline.csv" | cut -d, -f4,5)
-        printf '%-9s %4s | %-21s | %-21s | %-21s | %s\n' "$scene" "$spp" "$noisy" "$oidn" \
-            "$(printf '%.5f,%.2f' "${k%,*}" "${k#*,}")" "$((ms / 1000)).$(printf '%03d' $((ms % 1000)))"
+        k=$($kpcn eval -r "$dev/$scene-ref.exr" "$work/den.exr" --format csv | tail -1 | cut -d, -f3,4,5)
+        printf '%-9s %4s | %-28s | %-28s | %-28s | %s\n' "$scene" "$spp" "$(row "$(baseline $scene $spp noisy)")" \
+            "$(row "$(baseline $scene $spp oidn)")" "$(row "$k")" "$((ms / 1000)).$(printf '%03d' $((ms % 1000)))"
     done
 done
