@@ -242,3 +242,23 @@ fn bands_of_chosen_channels_read_like_the_whole_frame() {
     let err = reader.read_band(Some(&["nope.R"]), 0, 1).unwrap_err().to_string();
     assert!(err.contains("nope.R") && err.contains("f.exr"), "{err}");
 }
+
+#[test]
+fn tiled_files_read_in_bands_that_do_not_align_with_tiles() {
+    // tests/data/spheres-48x32-tiled16.exr = the golden input rewritten by
+    // `oiiotool … --tile 16 16` (RenderMan and others write tiled EXRs).
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scan = FrameBuffers::read(&root.join("tests/golden/spheres-48x32-input.exr")).unwrap();
+    let tiled_path = root.join("tests/data/spheres-48x32-tiled16.exr");
+    let tiled = FrameBuffers::read(&tiled_path).unwrap();
+    for p in scan.planes() {
+        assert!(tiled.channel(&p.name) == Some(p.data.as_slice()), "{}", p.name);
+    }
+    let mut reader = FrameReader::open(&tiled_path).unwrap();
+    for (y0, y1) in [(5, 21), (0, 1), (17, 32), (31, 32)] {
+        let band = reader.read_band(Some(&["R", "albedo.G"]), y0, y1).unwrap();
+        for n in ["R", "albedo.G"] {
+            assert_eq!(band.channel(n).unwrap(), &scan.channel(n).unwrap()[y0 * 48..y1 * 48], "{n} {y0}..{y1}");
+        }
+    }
+}

@@ -121,6 +121,7 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let model = run.join("model.safetensors");
     assert!(model.is_file() && run.join("checkpoint.safetensors").is_file());
+    assert!(run.join("training.png").is_file(), "the curves are drawn beside the checkpoint");
     assert!(Model::load(&model).unwrap().description.starts_with("trained by kpcn train"));
     let log = std::fs::read_to_string(run.join("log.csv")).unwrap();
     assert_eq!(log.lines().count(), 3, "{log}");
@@ -134,6 +135,12 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     let steps: Vec<&str> = log.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
     assert_eq!(steps, ["1", "2", "3", "4"], "{log}");
     assert!(!log.contains("0.5,0.5"), "{log}");
+    // Several runs' curves in one chart; a folder without a log is an error naming it.
+    let png = dir.path().join("cmp.png");
+    let out = kpcn(&["curves", r, r, "-o", png.to_str().unwrap()]);
+    assert!(out.status.success() && png.is_file(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = kpcn(&["curves", d, "-o", png.to_str().unwrap()]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("log.csv"));
     // The trained model denoises.
     let frame = std::fs::read_dir(dir.path().join("cornell-0000")).unwrap().next().unwrap().unwrap().path();
     let out = kpcn(&[
