@@ -211,7 +211,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ETA {eta}").expect("valid").progress_chars("=> "),
     );
     let mut rows: Vec<Row> = Vec::new();
-    let mut largest: Option<PathBuf> = None;
+    let mut sample_frame: Option<PathBuf> = None;
     let mut oidn_peak: Option<f64> = None;
     let mut denoise_time: Vec<(String, f64, f64)> = Vec::new(); // (method, seconds, megapixels)
     for family in &families {
@@ -268,7 +268,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
                 oidn_peak = Some(oidn_peak.unwrap_or(0f64).max(peak));
                 rows.push(row("oidn", secs, metrics([&c[0], &c[1], &c[2]], colour(r), w, h)));
             }
-            largest = Some(path.clone());
+            sample_frame = Some(path.clone());
             bar.inc(1);
         }
         for f in ["oidn-color", "oidn-albedo", "oidn-normal", "oidn-out"] {
@@ -286,7 +286,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
         if mp > 0.0 { s / mp } else { 0.0 }
     };
     for m in &methods {
-        let peak = match &largest {
+        let peak = match &sample_frame {
             Some(frame) => {
                 let out = frames_dir.join("peak-memory.exr");
                 let mut cmd = Command::new(&exe);
@@ -319,7 +319,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
     let mut summary = study::summary(&rows, &costs);
     summary.push_str(&format!(
         "\n{w}×{h}, {threads} threads, sample counts {}, reference {} spp; render seconds are the simulator's, denoise \
-         seconds the filter alone (kpcn: model loaded; OIDN: after a warm-up); peak RSS is a whole `kpcn denoise` \
+         seconds the filter alone (kpcn: model loaded; OIDN: after a warm-up); peak RSS is a whole `kpcn denoise --separate` \
          process (OIDN: the Python process, numpy included).\n",
         args.spp, args.reference_spp
     ));
