@@ -93,6 +93,10 @@ fn fmt(v: f32) -> String {
     if v.is_nan() { String::new() } else { format!("{v:.6}") }
 }
 
+/// Columns of `log.csv`; new columns go at the end so older readers keep working.
+const LOG_HEADER: &str =
+    "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second,validation_median_relmse";
+
 /// Redraws DIR/training.png from DIR/log.csv. A plot is a convenience: failing to draw
 /// one (no font) is said once and never stops training.
 fn plot(dir: &Path, bar: &ProgressBar) {
@@ -131,13 +135,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
         // Steps logged after the checkpoint by an interrupted run are redone: drop them.
         let log = std::fs::read_to_string(&log_path).unwrap_or_default();
-        let kept: Vec<&str> = log
-            .lines()
-            .enumerate()
-            .filter(|(i, l)| {
-                *i == 0 || l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s <= t.step)
-            })
-            .map(|(_, l)| l)
+        // The header is rewritten: a log from an older kpcn gains the newer columns' names.
+        let kept: Vec<&str> = std::iter::once(LOG_HEADER)
+            .chain(
+                log.lines()
+                    .skip(1)
+                    .filter(|l| l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s <= t.step)),
+            )
             .collect();
         std::fs::write(&log_path, kept.join("\n") + "\n")
             .with_context(|| format!("{}: cannot write", log_path.display()))?;
@@ -154,11 +158,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 Model::xavier(arch, args.seed)?
             }
         };
-        std::fs::write(
-            &log_path,
-            "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second\n",
-        )
-        .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        std::fs::write(&log_path, format!("{LOG_HEADER}\n"))
+            .with_context(|| format!("{}: cannot write", log_path.display()))?;
         Trainer::new(&model, &data, opts.clone())?
     };
     let mut log = std::fs::OpenOptions::new()
@@ -203,10 +204,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         while !trainer.finished() && !stop.load(Ordering::SeqCst) {
             let mut row: LogRow = trainer.train_step()?;
             if row.step % opts.validate_every == 0 || trainer.finished() {
-                row.validation_relmse = trainer.validate()?;
+                if let Some(v) = trainer.validate()? {
+                    row.validation_relmse = Some(v.mean);
+                    row.validation_median_relmse = Some(v.median);
+                }
             }
             let loss = if row.phase == 1 { row.loss_diffuse + row.loss_specular } else { row.loss_combined };
-            let val = row.validation_relmse.map(|v| format!(", val relMSE {v:.4}")).unwrap_or_default();
+            let val = row.validation_median_relmse.map(|v| format!(", val relMSE median {v:.4}")).unwrap_or_default();
             bar.set_message(format!(
                 "phase {} loss {loss:.4}{val}, {:.1} patches/s",
                 row.phase, row.patches_per_second
@@ -214,14 +218,15 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             bar.set_position(row.step);
             writeln!(
                 log,
-                "{},{},{},{},{},{},{:.3}",
+                "{},{},{},{},{},{},{:.3},{}",
                 row.step,
                 row.phase,
                 fmt(row.loss_diffuse),
                 fmt(row.loss_specular),
                 fmt(row.loss_combined),
                 row.validation_relmse.map(|v| v.to_string()).unwrap_or_default(),
-                row.patches_per_second
+                row.patches_per_second,
+                row.validation_median_relmse.map(|v| v.to_string()).unwrap_or_default()
             )?;
             if row.step % opts.checkpoint_every == 0 {
                 trainer.save(&checkpoint)?;

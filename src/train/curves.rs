@@ -15,21 +15,29 @@ pub struct Log {
     pub specular: Vec<(f64, f64)>,
     /// (step, combined loss) in phase 2.
     pub combined: Vec<(f64, f64)>,
-    /// (step, validation relMSE).
+    /// (step, mean validation relMSE).
     pub validation: Vec<(f64, f64)>,
+    /// (step, median validation relMSE); absent in logs from before it was logged.
+    pub validation_median: Vec<(f64, f64)>,
 }
 
 /// Parses a `kpcn train` log (`step,phase,loss_diffuse,loss_specular,loss_combined,
-/// validation_relmse,patches_per_second`); malformed rows are skipped.
+/// validation_relmse,patches_per_second[,validation_median_relmse]`); malformed rows are
+/// skipped.
 pub fn parse(text: &str) -> Log {
     let mut log = Log::default();
     for line in text.lines().skip(1) {
         let c: Vec<&str> = line.split(',').collect();
         let Some(step) = c.first().and_then(|s| s.parse::<f64>().ok()) else { continue };
         let num = |i: usize| c.get(i).and_then(|s| s.parse::<f64>().ok()).filter(|v| v.is_finite());
-        for (i, out) in
-            [(2, &mut log.diffuse), (3, &mut log.specular), (4, &mut log.combined), (5, &mut log.validation)]
-        {
+        let columns = [
+            (2, &mut log.diffuse),
+            (3, &mut log.specular),
+            (4, &mut log.combined),
+            (5, &mut log.validation),
+            (7, &mut log.validation_median),
+        ];
+        for (i, out) in columns {
             if let Some(v) = num(i) {
                 out.push((step, v));
             }
@@ -54,11 +62,13 @@ pub fn chart(runs: &[(String, Log)]) -> Chart {
     let mut series = Vec::new();
     for (name, log) in runs {
         let prefix = if runs.len() > 1 { format!("{name}: ") } else { String::new() };
-        series.push(Series {
-            name: format!("{prefix}validation relMSE"),
-            points: log.validation.clone(),
-            dashed: false,
-        });
+        // The median when logged: a single outlier frame dominates the mean.
+        let (what, points) = if log.validation_median.is_empty() {
+            ("validation relMSE (mean)", &log.validation)
+        } else {
+            ("validation relMSE (median)", &log.validation_median)
+        };
+        series.push(Series { name: format!("{prefix}{what}"), points: points.clone(), dashed: false });
         if runs.len() == 1 {
             for (what, p) in [("diffuse", &log.diffuse), ("specular", &log.specular), ("combined", &log.combined)] {
                 if !p.is_empty() {
@@ -82,11 +92,12 @@ mod tests {
     #[test]
     fn logs_parse_by_column_and_smooth() {
         let text = "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second\n\
-                    1,1,0.5,0.1,,,2.0\n2,1,0.3,0.1,,0.04,2.0\nbad row\n3,2,,,0.2,0.03,2.0\n";
+                    1,1,0.5,0.1,,,2.0\n2,1,0.3,0.1,,0.04,2.0,0.02\nbad row\n3,2,,,0.2,0.03,2.0,0.01\n";
         let log = parse(text);
         assert_eq!(log.diffuse, vec![(1.0, 0.5), (2.0, 0.3)]);
         assert_eq!(log.combined, vec![(3.0, 0.2)]);
         assert_eq!(log.validation, vec![(2.0, 0.04), (3.0, 0.03)]);
+        assert_eq!(log.validation_median, vec![(2.0, 0.02), (3.0, 0.01)]);
         assert_eq!(smooth(&log.diffuse, 2), vec![(2.0, 0.4)]);
         assert_eq!(chart(&[("a".into(), log.clone())]).series.len(), 4);
         assert_eq!(chart(&[("a".into(), log.clone()), ("b".into(), log)]).series.len(), 2);

@@ -331,10 +331,21 @@ pub struct LogRow {
     pub loss_specular: f32,
     /// Recomposed-colour L1 (phase 2).
     pub loss_combined: f32,
-    /// relMSE of the held-out scenes' denoised colour, when validated this step.
+    /// Mean relMSE of the held-out frames' denoised colour, when validated this step.
     pub validation_relmse: Option<f64>,
+    /// Median of the same: one outlier frame (a kept firefly) cannot move it.
+    pub validation_median_relmse: Option<f64>,
     /// Training throughput.
     pub patches_per_second: f64,
+}
+
+/// relMSE of the denoised held-out frames against their references.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Validation {
+    /// Mean over frames.
+    pub mean: f64,
+    /// Median over frames.
+    pub median: f64,
 }
 
 /// Errors of a training run.
@@ -478,6 +489,7 @@ impl<'a> Trainer<'a> {
             loss_specular: f32::NAN,
             loss_combined: f32::NAN,
             validation_relmse: None,
+            validation_median_relmse: None,
             patches_per_second: 0.0,
         };
         if self.step <= self.opts.phase1_steps {
@@ -500,20 +512,24 @@ impl<'a> Trainer<'a> {
     }
 
     /// Mean relMSE of the denoised held-out frames (None without validation frames).
-    pub fn validate(&self) -> Result<Option<f64>, TrainError> {
+    pub fn validate(&self) -> Result<Option<Validation>, TrainError> {
         if self.data.validation.is_empty() {
             return Ok(None);
         }
         let model = self.model.snapshot("validation")?;
         let d = crate::denoise::Denoiser::new(model, crate::denoise::Options::default())?;
-        let mut sum = 0.0;
+        let mut errors = Vec::with_capacity(self.data.validation.len());
         for f in &self.data.validation {
             let out = d.denoise_features(&f.features, &|_| true)?;
             let x = [out.color[0].as_slice(), &out.color[1], &out.color[2]];
             let y = [f.reference[0].as_slice(), &f.reference[1], &f.reference[2]];
-            sum += crate::eval::relmse(x, y);
+            errors.push(crate::eval::relmse(x, y));
         }
-        Ok(Some(sum / self.data.validation.len() as f64))
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        errors.sort_by(f64::total_cmp);
+        let n = errors.len();
+        let median = if n % 2 == 1 { errors[n / 2] } else { (errors[n / 2 - 1] + errors[n / 2]) / 2.0 };
+        Ok(Some(Validation { mean, median }))
     }
 
     /// The options.
