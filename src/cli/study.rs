@@ -6,7 +6,7 @@ use super::PEAK_RSS_ENV;
 use crate::denoise::{Denoiser, Options};
 use crate::eval::plot::write_png;
 use crate::eval::study::{self, Cost, MONTE_CARLO, Row};
-use crate::eval::{Rgb, metrics};
+use crate::eval::{metrics, rgb};
 use crate::io::layout::{KpcnInputs, Mapping};
 use crate::io::{FrameBuffers, WriteOptions};
 use crate::model::Model;
@@ -112,10 +112,6 @@ fn parse_list<T: std::str::FromStr>(s: &str, what: &str) -> anyhow::Result<Vec<T
     s.split(',')
         .map(|v| v.trim().parse::<T>().map_err(|_| anyhow::anyhow!("--{what}: `{v}` is not valid in `{s}`")))
         .collect()
-}
-
-fn colour(k: &KpcnInputs) -> Rgb<'_> {
-    [&k.color[0], &k.color[1], &k.color[2]]
 }
 
 fn interleave(p: &[Vec<f32>; 3]) -> Vec<u8> {
@@ -249,7 +245,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
                 psnr: m.psnr,
                 one_minus_ssim: m.one_minus_ssim,
             };
-            rows.push(row(MONTE_CARLO, 0.0, metrics(colour(&k), colour(r), w, h)));
+            rows.push(row(MONTE_CARLO, 0.0, metrics(rgb(&k.color), rgb(&r.color), w, h)));
             for m in &methods {
                 if rows.len() == 1 {
                     // Warm-up (allocator, caches), untimed, as OIDN's is.
@@ -259,14 +255,13 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
                 let d = m.denoiser.denoise(&k, &|_| true)?;
                 let secs = t.elapsed().as_secs_f64();
                 denoise_time.push((m.name.clone(), secs, (w * h) as f64 / 1e6));
-                let c = &d.color;
-                rows.push(row(&m.name, secs, metrics([&c[0], &c[1], &c[2]], colour(r), w, h)));
+                rows.push(row(&m.name, secs, metrics(rgb(&d.color), rgb(&r.color), w, h)));
             }
             if use_oidn {
                 let (c, secs, peak) = oidn(&k, &dir, threads)?;
                 denoise_time.push(("oidn".into(), secs, (w * h) as f64 / 1e6));
                 oidn_peak = Some(oidn_peak.unwrap_or(0f64).max(peak));
-                rows.push(row("oidn", secs, metrics([&c[0], &c[1], &c[2]], colour(r), w, h)));
+                rows.push(row("oidn", secs, metrics(rgb(&c), rgb(&r.color), w, h)));
             }
             sample_frame = Some(path.clone());
             bar.inc(1);

@@ -197,22 +197,21 @@ impl FileJob {
     }
 }
 
-/// `NAME.R/G/B`, then with `aovs` `NAME_diffuse.*` and `NAME_specular.*`.
+/// The layers written: suffix of the layer name and which result it holds. `NAME`, then
+/// with `aovs` `NAME_diffuse` and `NAME_specular`.
+type Layer = (&'static str, fn(&Denoised) -> &[Vec<f32>; 3]);
+
+fn new_layers(aovs: bool) -> &'static [Layer] {
+    const ALL: [Layer; 3] = [("", |d| &d.color), ("_diffuse", |d| &d.diffuse), ("_specular", |d| &d.specular)];
+    if aovs { &ALL } else { &ALL[..1] }
+}
+
+/// Channel names of [`new_layers`], R/G/B per layer.
 fn new_layer_names(layer: &str, aovs: bool) -> Vec<String> {
-    let mut layers = vec![layer.to_string()];
-    if aovs {
-        layers.push(format!("{layer}_diffuse"));
-        layers.push(format!("{layer}_specular"));
-    }
-    layers.iter().flat_map(|l| ["R", "G", "B"].map(|c| format!("{l}.{c}"))).collect()
+    new_layers(aovs).iter().flat_map(|(suffix, _)| ["R", "G", "B"].map(|c| format!("{layer}{suffix}.{c}"))).collect()
 }
 
 /// The planes of [`new_layer_names`], in that order.
 fn new_planes(d: &Denoised, aovs: bool) -> Vec<&[f32]> {
-    let mut layers = vec![&d.color];
-    if aovs {
-        layers.push(&d.diffuse);
-        layers.push(&d.specular);
-    }
-    layers.iter().flat_map(|l| l.iter().map(Vec::as_slice)).collect()
+    new_layers(aovs).iter().flat_map(|(_, get)| get(d).iter().map(Vec::as_slice)).collect()
 }

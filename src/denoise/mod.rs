@@ -191,8 +191,7 @@ impl Denoiser {
             Kind::Kpcn => {
                 let (nw, nh) = (t.w + 2 * rk as usize, t.h + 2 * rk as usize);
                 let colour = f.colour(b);
-                let region =
-                    f.region(&[&colour[0], &colour[1], &colour[2]], t.x as isize - rk, t.y as isize - rk, nw, nh);
+                let region = f.region(&crate::eval::rgb(colour), t.x as isize - rk, t.y as isize - rk, nw, nh);
                 let m = nw * nh;
                 let noisy = [0, 1, 2].map(|c| region[c * m..(c + 1) * m].to_vec());
                 kernel::apply(&out, &noisy, arch.kernel_size, t.w, t.h)

@@ -9,6 +9,11 @@ pub mod study;
 /// RGB planes of one image.
 pub type Rgb<'a> = [&'a [f32]; 3];
 
+/// Borrows owned RGB planes as [`Rgb`].
+pub fn rgb(p: &[Vec<f32>; 3]) -> Rgb<'_> {
+    [&p[0], &p[1], &p[2]]
+}
+
 /// The three metrics of one image against its reference.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Metrics {

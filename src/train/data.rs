@@ -327,7 +327,7 @@ pub fn batch(
         input.extend(fe.branch_input(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, p + 2 * rf));
         let c = fe.colour(b);
         noisy.extend(fe.region(
-            &[&c[0], &c[1], &c[2]],
+            &crate::eval::rgb(c),
             x0 as isize - rk as isize,
             y0 as isize - rk as isize,
             p + 2 * rk,

@@ -521,9 +521,7 @@ impl<'a> Trainer<'a> {
         let mut errors = Vec::with_capacity(self.data.validation.len());
         for f in &self.data.validation {
             let out = d.denoise_features(&f.features, &|_| true)?;
-            let x = [out.color[0].as_slice(), &out.color[1], &out.color[2]];
-            let y = [f.reference[0].as_slice(), &f.reference[1], &f.reference[2]];
-            errors.push(crate::eval::relmse(x, y));
+            errors.push(crate::eval::relmse(crate::eval::rgb(&out.color), crate::eval::rgb(&f.reference)));
         }
         let mean = errors.iter().sum::<f64>() / errors.len() as f64;
         errors.sort_by(f64::total_cmp);
