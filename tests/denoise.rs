@@ -6,14 +6,34 @@ use kpcn::denoise::{Denoised, Denoiser, FileJob, FileOptions, Options};
 use kpcn::features::{EPSILON, Features, reflect};
 use kpcn::io::layout::{KpcnInputs, Mapping};
 use kpcn::io::{FrameBuffers, SampleFormat, WriteOptions};
-use kpcn::model::{Architecture, Kind, Model};
+use kpcn::model::{Architecture, Design, Kind, Model};
 use proptest::prelude::*;
 use std::path::Path;
 use std::process::Command;
 
 /// A tiny network (fast in tests) with the paper's 21×21 kernels.
 fn tiny(kind: Kind, kernel: usize) -> Model {
-    Model::xavier(Architecture { kind, layers: 3, channels: 6, conv_size: 3, kernel_size: kernel }, 3).unwrap()
+    Model::xavier(
+        Architecture { kind, design: Design::Flat, layers: 3, channels: 6, conv_size: 3, kernel_size: kernel },
+        3,
+    )
+    .unwrap()
+}
+
+/// A tiny multi-scale network: 2 pooling levels, 4…12 channels, 3×3 kernels.
+fn tiny_ms() -> Model {
+    Model::xavier(
+        Architecture {
+            kind: Kind::Kpcn,
+            design: Design::MultiScale,
+            layers: 2,
+            channels: 4,
+            conv_size: 3,
+            kernel_size: 3,
+        },
+        4,
+    )
+    .unwrap()
 }
 
 fn run(model: Model, k: &KpcnInputs, tile: Option<usize>, threads: usize) -> Denoised {
@@ -96,6 +116,45 @@ proptest! {
         let tiled = run(tiny(Kind::Kpcn, 5), &k, Some(tile), 1);
         // Convolutions over regions of different sizes may sum in another order.
         prop_assert!(max_rel_diff(&whole, &tiled) < 1e-5, "{}", max_rel_diff(&whole, &tiled));
+    }
+
+    #[test]
+    fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
+        w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>()
+    ) {
+        // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
+        // the receptive radius as halo) reproduce the frame exactly; hostile inputs stay finite.
+        let k = frame(w, h, seed, hostile);
+        let whole = run(tiny_ms(), &k, Some(1024), 1);
+        let tiled = run(tiny_ms(), &k, Some(tile), 2);
+        prop_assert!(all_finite(&whole));
+        prop_assert_eq!(whole, tiled);
+    }
+}
+
+#[test]
+fn multiscale_output_lies_within_the_receptive_range() {
+    let (w, h) = (29, 21);
+    let mut k = frame(w, h, 6, false);
+    for p in &mut k.albedo {
+        p.fill(0.5);
+    }
+    let model = tiny_ms();
+    let r = model.arch.feature_radius() as isize;
+    let d = run(model, &k, Some(8), 2);
+    let f = Features::new(&k);
+    for c in 0..3 {
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let nb = (-r..=r)
+                    .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+                    .map(|(dx, dy)| f.d_tilde[c][reflect(y + dy, h) * w + reflect(x + dx, w)]);
+                let (lo, hi) = nb.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+                let d_hat = d.diffuse[c][y as usize * w + x as usize] / (0.5 + EPSILON);
+                let tol = 1e-5 * lo.abs().max(hi.abs()).max(1.0);
+                assert!(d_hat >= lo - tol && d_hat <= hi + tol, "{d_hat} outside [{lo}, {hi}] at {x},{y}");
+            }
+        }
     }
 }
 
@@ -355,14 +414,15 @@ fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
     fb.insert("depth.Z", SampleFormat::Float, depth).unwrap();
     let input = write(&fb, dir.path(), "in.exr");
     let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
-    for kind in [Kind::Kpcn, Kind::Dpcn] {
-        let whole = run(tiny(kind, 5), &k, Some(16), 2);
+    for model in [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms()] {
+        let whole = run(model.clone(), &k, Some(16), 2);
+        // Multi-scale bands are rounded up to its pooling grid (4 rows).
         for band in [Some(1), Some(4), Some(7), None] {
-            let out = denoise_file(tiny(kind, 5), &input, &dir.path().join("out.exr"), band, false);
+            let out = denoise_file(model.clone(), &input, &dir.path().join("out.exr"), band, false);
             for (layer, planes) in [("denoised", &whole.color), ("denoised_diffuse", &whole.diffuse)] {
                 for (c, plane) in ["R", "G", "B"].iter().zip(planes) {
                     let got = out.channel(&format!("{layer}.{c}")).unwrap();
-                    assert_eq!(got, plane.as_slice(), "{kind:?} band {band:?} {layer}.{c}");
+                    assert_eq!(got, plane.as_slice(), "{:?} band {band:?} {layer}.{c}", model.arch);
                 }
             }
             // Every input channel is copied unchanged.

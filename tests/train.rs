@@ -1,7 +1,7 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
 use kpcn::features::Branch;
-use kpcn::model::{Architecture, Kind, Model};
+use kpcn::model::{Architecture, Design, Kind, Model};
 use kpcn::train::data::{Dataset, batch};
 use kpcn::train::{TrainOptions, Trainer, l1};
 use std::path::Path;
@@ -48,7 +48,11 @@ fn options(steps: u64) -> TrainOptions {
 }
 
 fn tiny() -> Model {
-    Model::xavier(Architecture { kind: Kind::Kpcn, layers: 3, channels: 8, conv_size: 3, kernel_size: 5 }, 1).unwrap()
+    Model::xavier(
+        Architecture { kind: Kind::Kpcn, design: Design::Flat, layers: 3, channels: 8, conv_size: 3, kernel_size: 5 },
+        1,
+    )
+    .unwrap()
 }
 
 fn weights(m: &Model) -> Vec<u32> {
@@ -158,6 +162,15 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .flat_map(|p| if p.is_dir() { walk(&p) } else { vec![p] })
+        .collect()
+}
+
 #[test]
 fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
     let dir = tempfile::tempdir().unwrap();
@@ -178,6 +191,13 @@ fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
     let cache = dir.path().join("cache");
     let mut files: Vec<_> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().path()).collect();
     files.sort();
+    // Compact: the whole cache is smaller than the EXRs it replaces.
+    let size = |paths: &mut dyn Iterator<Item = std::path::PathBuf>| -> u64 {
+        paths.map(|p| std::fs::metadata(p).unwrap().len()).sum()
+    };
+    let exrs = walk(dir.path()).into_iter().filter(|p| p.extension().is_some_and(|e| e == "exr"));
+    let (cached, sources) = (size(&mut files.clone().into_iter()), size(&mut exrs.into_iter()));
+    assert!(cached < sources, "cache {cached} B vs EXRs {sources} B");
     std::fs::write(&files[0], b"garbage").unwrap();
     let manifest = std::fs::read_to_string(dir.path().join("manifest.csv")).unwrap();
     let noisy = manifest.lines().nth(2).unwrap().split(',').nth(5).unwrap().to_string();
@@ -186,4 +206,45 @@ fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
     std::fs::write(dir.path().join(&noisy), bytes).unwrap();
     let third = Dataset::load(dir.path(), 3, true).unwrap();
     assert_eq!(third.cached, 4);
+}
+
+#[test]
+fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false).unwrap();
+    let ms = Model::xavier(
+        Architecture {
+            kind: Kind::Kpcn,
+            design: Design::MultiScale,
+            layers: 2,
+            channels: 4,
+            conv_size: 3,
+            kernel_size: 3,
+        },
+        2,
+    )
+    .unwrap();
+    // 9 + 2 × 16 context pixels is not a multiple of 4.
+    let e = Trainer::new(&ms, &data, TrainOptions { patch: 9, ..options(10) }).err().expect("refused").to_string();
+    assert!(e.contains("--patch 9") && e.contains("try --patch 12"), "{e}");
+
+    let opts = TrainOptions { patch: 8, lr: 1e-2, ..options(40) };
+    let frames: Vec<_> = data.train.iter().collect();
+    let origins = vec![(4, 4); frames.len()];
+    let fixed = batch(&frames, &origins, 8, &ms.arch, Branch::Diffuse).unwrap();
+    assert_eq!(fixed.input.dims(), [frames.len(), 27, 40, 40], "patch + the training margins");
+    let mut t = Trainer::new(&ms, &data, opts).unwrap();
+    let loss = |t: &Trainer| {
+        let p = t.model.predict(true, &fixed.input, &fixed.noisy).unwrap();
+        assert_eq!(p.dims(), fixed.target.dims());
+        l1(&p, &fixed.target).unwrap().to_scalar::<f32>().unwrap()
+    };
+    let before = loss(&t);
+    while !t.finished() {
+        t.train_step().unwrap();
+    }
+    let after = loss(&t);
+    assert!(after < 0.9 * before, "loss {before} → {after}");
+    assert!(t.validate().unwrap().unwrap().median.is_finite());
 }

@@ -7,6 +7,7 @@ mod info;
 mod model;
 mod render;
 mod sequence;
+mod speed;
 mod study;
 mod train;
 
@@ -86,6 +87,10 @@ pub enum Command {
         after_help = "Examples:\n  kpcn study -o study/\n  kpcn study -o study/ --families cornell,glass --spp 2,8,32 --models default,run/model.safetensors"
     )]
     Study(study::StudyArgs),
+    /// Seconds per frame of each model's forward pass (in process, model loaded, after a
+    /// warm-up) beside OIDN measured in the same run on the same rendered frame.
+    #[command(after_help = "Examples:\n  kpcn speed\n  kpcn speed --models default,small,paper --resolution 1920x1080")]
+    Speed(speed::SpeedArgs),
     /// Inspect model files or write an untrained one.
     Model(model::ModelArgs),
 }
@@ -113,6 +118,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => train::run(&args),
         Command::Curves(args) => train::run_curves(&args),
         Command::Study(args) => study::run(&args),
+        Command::Speed(args) => speed::run(&args),
     }
 }
 

@@ -1,6 +1,6 @@
 //! `kpcn model`: inspect model files and create initial (untrained) ones.
 
-use crate::model::{Architecture, Kind, Model};
+use crate::model::{Architecture, Design, Kind, Model};
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -46,6 +46,25 @@ pub enum Preset {
     Paper,
     /// 6 layers × 32 channels, 3×3, 11×11 kernels.
     Small,
+    /// U-Net with 3 pooling levels (16…64 channels), 5×5 kernels at 3 scales, blended
+    /// (KPCN only; about 80 kFLOP per pixel).
+    Multiscale,
+}
+
+impl Preset {
+    /// The architecture of this preset and kind.
+    pub fn architecture(self, kind: KindArg) -> anyhow::Result<Architecture> {
+        let kind = match kind {
+            KindArg::Kpcn => Kind::Kpcn,
+            KindArg::Dpcn => Kind::Dpcn,
+        };
+        Ok(match self {
+            Preset::Paper => Architecture::paper(kind),
+            Preset::Small => Architecture::small(kind),
+            Preset::Multiscale if kind == Kind::Kpcn => Architecture::multiscale(),
+            Preset::Multiscale => anyhow::bail!("the multiscale preset predicts kernels only: drop --kind dpcn"),
+        })
+    }
 }
 
 /// Network kinds.
@@ -60,12 +79,24 @@ pub enum KindArg {
 /// Prints what a model is.
 pub fn describe(m: &Model) {
     let a = &m.arch;
-    println!(
-        "  architecture  {:?}: {} layers × {} channels, {}×{} convolutions",
-        a.kind, a.layers, a.channels, a.conv_size, a.conv_size
-    );
+    match a.design {
+        Design::Flat => println!(
+            "  architecture  {:?}: {} layers × {} channels, {}×{} convolutions",
+            a.kind, a.layers, a.channels, a.conv_size, a.conv_size
+        ),
+        Design::MultiScale => println!(
+            "  architecture  multi-scale {:?}: {} pooling levels, {}…{} channels, {}×{} convolutions",
+            a.kind,
+            a.layers,
+            a.channels,
+            a.channels * (a.layers + 1),
+            a.conv_size,
+            a.conv_size
+        ),
+    }
     if a.kind == Kind::Kpcn {
-        println!("  kernels       {}×{}", a.kernel_size, a.kernel_size);
+        let scales = if a.design == Design::MultiScale { a.layers } else { 1 };
+        println!("  kernels       {}×{} at {scales} scale(s)", a.kernel_size, a.kernel_size);
     }
     println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
     println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);
@@ -84,15 +115,7 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
             describe(&m);
         }
         ModelAction::Init { preset, kind, seed, output } => {
-            let kind = match kind {
-                KindArg::Kpcn => Kind::Kpcn,
-                KindArg::Dpcn => Kind::Dpcn,
-            };
-            let arch = match preset {
-                Preset::Paper => Architecture::paper(kind),
-                Preset::Small => Architecture::small(kind),
-            };
-            let m = Model::xavier(arch, *seed)?;
+            let m = Model::xavier(preset.architecture(*kind)?, *seed)?;
             m.save(output).with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());
             describe(&m);

@@ -88,7 +88,8 @@ pub struct DatasetArgs {
     pub sampling: SamplingArgs,
 }
 
-fn parse_resolution(s: &str) -> Result<(usize, usize), String> {
+/// A clap parser for `WxH`.
+pub(super) fn parse_resolution(s: &str) -> Result<(usize, usize), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("`{s}` is not WxH, e.g. 320x180"))?;
     let p = |v: &str| v.trim().parse::<usize>().ok().filter(|&n| n > 0 && n <= 16384);
     match (p(w), p(h)) {

@@ -37,8 +37,8 @@ pub struct StudyArgs {
     #[arg(long, default_value_t = 1024, value_name = "N")]
     pub reference_spp: u32,
     /// Film size.
-    #[arg(long, default_value = "320x180", value_name = "WxH")]
-    pub resolution: String,
+    #[arg(long, default_value = "320x180", value_parser = super::render::parse_resolution, value_name = "WxH")]
+    pub resolution: (usize, usize),
     /// Models to compare, comma-separated: `default`, preset names, or .safetensors files.
     #[arg(long, default_value = "default", value_name = "M,M,…")]
     pub models: String,
@@ -119,7 +119,7 @@ fn interleave(p: &[Vec<f32>; 3]) -> Vec<u8> {
 }
 
 /// Denoises `k` with OIDN; returns the colour planes, filter seconds and the process's peak RSS.
-fn oidn(k: &KpcnInputs, dir: &Path, threads: usize) -> anyhow::Result<([Vec<f32>; 3], f64, f64)> {
+pub(super) fn oidn(k: &KpcnInputs, dir: &Path, threads: usize) -> anyhow::Result<([Vec<f32>; 3], f64, f64)> {
     let prefix = dir.join("oidn-");
     for (name, p) in [("color", &k.color), ("albedo", &k.albedo), ("normal", &k.normal)] {
         std::fs::write(format!("{}{name}", prefix.display()), interleave(p))?;
@@ -142,7 +142,7 @@ fn oidn(k: &KpcnInputs, dir: &Path, threads: usize) -> anyhow::Result<([Vec<f32>
     Ok((planes, seconds, m.peak_mb))
 }
 
-fn oidn_available() -> bool {
+pub(super) fn oidn_available() -> bool {
     Command::new("python3")
         .args(["-c", "import pyoidn, numpy"])
         .stdout(Stdio::null())
@@ -164,12 +164,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
     if spps.iter().any(|&s| s < 2) || spps.is_empty() {
         bail!("--spp: every sample count must be ≥ 2 (a variance needs two samples)");
     }
-    let (w, h) = args
-        .resolution
-        .split_once('x')
-        .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)))
-        .filter(|&(a, b)| a > 0 && b > 0)
-        .with_context(|| format!("--resolution: `{}` is not WxH, e.g. 320x180", args.resolution))?;
+    let (w, h) = args.resolution;
     let families: Vec<&str> = args.families.split(',').map(str::trim).collect();
     for f in &families {
         if !FAMILIES.iter().any(|(n, _)| n == f) {

@@ -2,7 +2,7 @@
 
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
-use crate::model::{Architecture, Kind, Model};
+use crate::model::Model;
 use crate::train::curves;
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
@@ -149,14 +149,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     } else {
         let model = match &args.init {
             Some(p) => Model::load(p)?,
-            None => {
-                let kind = if matches!(args.kind, KindArg::Kpcn) { Kind::Kpcn } else { Kind::Dpcn };
-                let arch = match args.preset {
-                    Preset::Paper => Architecture::paper(kind),
-                    Preset::Small => Architecture::small(kind),
-                };
-                Model::xavier(arch, args.seed)?
-            }
+            None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
         std::fs::write(&log_path, format!("{LOG_HEADER}\n"))
             .with_context(|| format!("{}: cannot write", log_path.display()))?;
@@ -244,7 +237,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     }
     let a = trainer.model.base.arch;
     let description = format!(
-        "trained by kpcn train: {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{}, seed {}, {} patches; data {} ({} frames, {} held out)",
+        "trained by kpcn train: {:?} {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{}, seed {}, {} patches; data {} ({} frames, {} held out)",
+        a.design,
         a.kind,
         a.layers,
         a.channels,

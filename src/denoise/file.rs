@@ -97,7 +97,10 @@ impl FileJob {
         let (w, h) = self.size();
         let budget = denoiser.options.max_memory_mb << 20;
         let by_budget = budget / (w.max(1) * 4 * BAND_FLOATS_PER_PIXEL);
-        opts.band_rows.unwrap_or(by_budget.max(16)).clamp(1, h.max(1))
+        // Bands start on the network's pooling grid.
+        let rows =
+            opts.band_rows.unwrap_or(by_budget.max(16)).max(1).next_multiple_of(denoiser.model().arch.alignment());
+        rows.min(h.max(1))
     }
 
     /// Denoises into `output` (atomically: nothing appears there on failure or cancel).

@@ -7,7 +7,7 @@
 use crate::features::{Branch, EPSILON, Features, INPUT_CHANNELS, sanitize};
 use crate::io::layout::KpcnInputs;
 use crate::kernel;
-use crate::model::{Kind, Model, ModelError};
+use crate::model::{Design, Kind, Model, ModelError};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 
@@ -101,9 +101,11 @@ impl Denoiser {
 
     /// The tile side used for a `width`×`height` frame.
     pub fn tile_size(&self, width: usize, height: usize) -> usize {
+        let arch = &self.model.arch;
         self.options
             .tile_size
-            .unwrap_or_else(|| tile::size_for_budget(&self.model.arch, self.options.max_memory_mb << 20, width, height))
+            .unwrap_or_else(|| tile::size_for_budget(arch, self.options.max_memory_mb << 20, width, height))
+            .next_multiple_of(arch.alignment())
     }
 
     /// Denoises one frame. `progress` is called after every tile; returning `false` cancels.
@@ -176,6 +178,9 @@ impl Denoiser {
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.
     fn branch(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
         let arch = &self.model.arch;
+        if arch.design == Design::MultiScale {
+            return self.branch_multiscale(f, b, t);
+        }
         let (rf, rk) = (arch.feature_radius() as isize, arch.kernel_radius() as isize);
         let (iw, ih) = (t.w + 2 * rf as usize, t.h + 2 * rf as usize);
         let x = f.branch_input(b, t.x as isize - rf, t.y as isize - rf, iw, ih);
@@ -197,6 +202,32 @@ impl Denoiser {
                 kernel::apply(&out, &noisy, arch.kernel_size, t.w, t.h)
             }
         })
+    }
+}
+
+impl Denoiser {
+    /// [`Denoiser::branch`] of a multi-scale network: the tile plus the receptive radius,
+    /// extended right and down to the pooling grid, evaluated whole; its inner pixels kept.
+    fn branch_multiscale(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
+        let arch = &self.model.arch;
+        let r = arch.feature_radius();
+        let align = arch.alignment();
+        let (rw, rh) = ((t.w + 2 * r).next_multiple_of(align), (t.h + 2 * r).next_multiple_of(align));
+        let (x0, y0) = (t.x as isize - r as isize, t.y as isize - r as isize);
+        let input = f.branch_input(b, x0, y0, rw, rh);
+        let noisy = f.region(&crate::eval::rgb(f.colour(b)), x0, y0, rw, rh);
+        let weights = match b {
+            Branch::Diffuse => &self.model.diffuse,
+            Branch::Specular => &self.model.specular,
+        };
+        let out = crate::kernel::pyramid::forward(arch, weights, input, noisy, rw, rh)?;
+        Ok(out.map(|plane| {
+            let mut v = Vec::with_capacity(t.w * t.h);
+            for y in r..r + t.h {
+                v.extend_from_slice(&plane[y * rw + r..][..t.w]);
+            }
+            v
+        }))
     }
 }
 

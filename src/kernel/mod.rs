@@ -5,6 +5,9 @@
 
 use rayon::prelude::*;
 
+pub mod conv;
+pub mod pyramid;
+
 /// Logits are clamped to this magnitude (NaN → −it) so the softmax stays finite.
 const LOGIT_LIMIT: f32 = 1e30;
 

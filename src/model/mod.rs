@@ -10,6 +10,8 @@ use candle_core::{DType, Device, Tensor};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod multiscale;
+
 /// Model file format version written in the metadata.
 pub const FORMAT_VERSION: &str = "1";
 
@@ -25,18 +27,32 @@ pub enum Kind {
     Dpcn,
 }
 
+/// How a branch is built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Design {
+    /// Every layer at full resolution (the paper's network).
+    #[default]
+    Flat,
+    /// A U-Net that predicts small kernels on an image pyramid and blends the scales
+    /// ([`multiscale`]); KPCN only.
+    MultiScale,
+}
+
 /// A network's shape.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Architecture {
     /// KPCN or DPCN.
     pub kind: Kind,
-    /// Convolution layers per branch.
+    /// Flat or multi-scale.
+    pub design: Design,
+    /// Convolution layers per branch (flat); pooling levels (multi-scale).
     pub layers: usize,
-    /// Width of the hidden layers.
+    /// Width of the hidden layers (flat); of the full-resolution ones, growing by this much
+    /// per level (multi-scale).
     pub channels: usize,
     /// Convolution size (odd).
     pub conv_size: usize,
-    /// Predicted kernel size (odd; KPCN only).
+    /// Predicted kernel size (odd; KPCN only), at every scale for multi-scale.
     pub kernel_size: usize,
 }
 
@@ -60,7 +76,9 @@ pub enum ModelError {
         what: String,
     },
     /// Unknown preset name.
-    #[error("unknown model `{0}` — use `paper`, `small`, `default` or a .safetensors file")]
+    #[error(
+        "unknown model `{0}` — use `default`, `paper`, `small`, `multiscale` (untrained presets) or a .safetensors file"
+    )]
     UnknownPreset(String),
     /// A tensor computation failed.
     #[error("network evaluation failed: {0}")]
@@ -70,12 +88,25 @@ pub enum ModelError {
 impl Architecture {
     /// The paper's configuration: 9 layers, 100 channels, 5×5 convolutions, 21×21 kernels.
     pub fn paper(kind: Kind) -> Self {
-        Architecture { kind, layers: 9, channels: 100, conv_size: 5, kernel_size: 21 }
+        Architecture { kind, design: Design::Flat, layers: 9, channels: 100, conv_size: 5, kernel_size: 21 }
     }
 
     /// A small flat network: 6 layers, 32 channels, 3×3 convolutions, 11×11 kernels.
     pub fn small(kind: Kind) -> Self {
-        Architecture { kind, layers: 6, channels: 32, conv_size: 3, kernel_size: 11 }
+        Architecture { kind, design: Design::Flat, layers: 6, channels: 32, conv_size: 3, kernel_size: 11 }
+    }
+
+    /// The multi-scale KPCN: 3 pooling levels, 16/32/48/64 channels, 3×3 convolutions,
+    /// 5×5 kernels at full, half and quarter resolution.
+    pub fn multiscale() -> Self {
+        Architecture {
+            kind: Kind::Kpcn,
+            design: Design::MultiScale,
+            layers: 3,
+            channels: 16,
+            conv_size: 3,
+            kernel_size: 5,
+        }
     }
 
     /// Outputs of the last layer.
@@ -86,38 +117,78 @@ impl Architecture {
         }
     }
 
-    /// Pixels of context each side that the convolutions need.
+    /// Pixels of context each side that the network needs: a tile is evaluated on itself
+    /// plus this halo. Multi-scale: a bound on the receptive field, a multiple of
+    /// [`Architecture::alignment`].
     pub fn feature_radius(&self) -> usize {
-        self.layers * (self.conv_size - 1) / 2
-    }
-
-    /// Pixels of noisy colour each side that the predicted kernel reads (0 for DPCN).
-    pub fn kernel_radius(&self) -> usize {
-        match self.kind {
-            Kind::Kpcn => (self.kernel_size - 1) / 2,
-            Kind::Dpcn => 0,
+        match self.design {
+            Design::Flat => self.layers * (self.conv_size - 1) / 2,
+            Design::MultiScale => multiscale::receptive_radius(self),
         }
     }
 
-    /// (out, in) channels of layer `l`.
-    pub fn layer_channels(&self, l: usize) -> (usize, usize) {
-        let cin = if l == 0 { INPUT_CHANNELS } else { self.channels };
-        let cout = if l + 1 == self.layers { self.outputs() } else { self.channels };
-        (cout, cin)
+    /// Pixels of noisy colour each side that the predicted kernel reads beyond the
+    /// output (0 for DPCN). Multi-scale reads the noisy colour of the whole halo region.
+    pub fn kernel_radius(&self) -> usize {
+        match (self.design, self.kind) {
+            (Design::MultiScale, _) => self.feature_radius(),
+            (Design::Flat, Kind::Kpcn) => (self.kernel_size - 1) / 2,
+            (Design::Flat, Kind::Dpcn) => 0,
+        }
+    }
+
+    /// Tiles and bands must start at multiples of this (the pyramid's pooling grid is the
+    /// frame's, so a tile sees the same pyramid as the whole frame).
+    pub fn alignment(&self) -> usize {
+        match self.design {
+            Design::Flat => 1,
+            Design::MultiScale => 1 << self.layers,
+        }
+    }
+
+    /// Context (features, noisy colour) around a training patch. Flat: exactly what the
+    /// output needs. Multi-scale: a margin of real context inside the evaluated region,
+    /// whose outer pixels see zero padding; the loss covers only the patch.
+    pub fn train_margins(&self) -> (usize, usize) {
+        match self.design {
+            Design::Flat => (self.feature_radius(), self.kernel_radius()),
+            Design::MultiScale => (16, 16),
+        }
+    }
+
+    /// (out, in, size) of every convolution, in the model file's order.
+    pub fn layer_shapes(&self) -> Vec<(usize, usize, usize)> {
+        match self.design {
+            Design::Flat => (0..self.layers)
+                .map(|l| {
+                    let cin = if l == 0 { INPUT_CHANNELS } else { self.channels };
+                    let cout = if l + 1 == self.layers { self.outputs() } else { self.channels };
+                    (cout, cin, self.conv_size)
+                })
+                .collect(),
+            Design::MultiScale => multiscale::layer_shapes(self),
+        }
     }
 
     /// Multiply-adds ×2 per pixel, both branches, network and kernel application.
     pub fn flops_per_pixel(&self) -> f64 {
-        let k2 = (self.conv_size * self.conv_size) as f64;
-        let net: f64 = (0..self.layers).map(|l| self.layer_channels(l)).map(|(o, i)| 2.0 * (o * i) as f64 * k2).sum();
-        let kernel = if self.kind == Kind::Kpcn { 2.0 * 3.0 * self.outputs() as f64 } else { 0.0 };
-        2.0 * (net + kernel)
+        match self.design {
+            Design::Flat => {
+                let net: f64 = self.layer_shapes().iter().map(|&(o, i, k)| 2.0 * (o * i * k * k) as f64).sum();
+                let kernel = if self.kind == Kind::Kpcn { 2.0 * 3.0 * self.outputs() as f64 } else { 0.0 };
+                2.0 * (net + kernel)
+            }
+            Design::MultiScale => 2.0 * multiscale::flops_per_pixel(self),
+        }
     }
 
     fn validate(&self, origin: &str) -> Result<(), ModelError> {
         let bad = |what: String| Err(ModelError::Format { origin: origin.into(), what });
         if self.layers == 0 || self.channels == 0 || self.conv_size % 2 == 0 || self.kernel_size % 2 == 0 {
             return bad(format!("impossible architecture {self:?}"));
+        }
+        if self.design == Design::MultiScale && (self.kind != Kind::Kpcn || self.layers > 6) {
+            return bad(format!("a multi-scale network is KPCN with 1–6 levels, not {self:?}"));
         }
         Ok(())
     }
@@ -131,6 +202,7 @@ impl Architecture {
             ("kpcn:format", FORMAT_VERSION.to_string()),
             ("kpcn:input_layout", INPUT_LAYOUT.to_string()),
             ("kpcn:kind", kind.to_string()),
+            ("kpcn:design", (if self.design == Design::MultiScale { "multiscale" } else { "flat" }).to_string()),
             ("kpcn:layers", self.layers.to_string()),
             ("kpcn:channels", self.channels.to_string()),
             ("kpcn:conv_size", self.conv_size.to_string()),
@@ -160,8 +232,15 @@ impl Architecture {
             "dpcn" => Kind::Dpcn,
             other => return Err(err(format!("unknown network kind `{other}`"))),
         };
+        // Files from before multi-scale networks have no design: flat.
+        let design = match m.get("kpcn:design").map(String::as_str) {
+            None | Some("flat") => Design::Flat,
+            Some("multiscale") => Design::MultiScale,
+            Some(other) => return Err(err(format!("unknown network design `{other}`"))),
+        };
         let a = Architecture {
             kind,
+            design,
             layers: num("kpcn:layers")?,
             channels: num("kpcn:channels")?,
             conv_size: num("kpcn:conv_size")?,
@@ -172,7 +251,8 @@ impl Architecture {
     }
 }
 
-/// One branch's weights: per layer (weight `[out, in, k, k]`, bias `[out]`).
+/// One branch's weights: per layer (weight `[out, in, k, k]`, bias `[out]`), in the order
+/// of [`Architecture::layer_shapes`].
 #[derive(Debug, Clone)]
 pub struct BranchWeights {
     /// Layers.
@@ -180,7 +260,7 @@ pub struct BranchWeights {
 }
 
 impl BranchWeights {
-    /// Evaluates the branch on a `[1, 27, h + 2r, w + 2r]` input; returns `[1, out, h, w]`.
+    /// Evaluates a flat branch on a `[1, 27, h + 2r, w + 2r]` input; returns `[1, out, h, w]`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor, ModelError> {
         let mut x = x.clone();
         let n = self.layers.len();
@@ -213,11 +293,11 @@ impl Model {
     pub fn xavier(arch: Architecture, seed: u64) -> Result<Model, ModelError> {
         arch.validate("xavier")?;
         let mut rng = crate::rng::SplitMix64(seed);
-        let k = arch.conv_size;
         let mut branch = || -> Result<BranchWeights, ModelError> {
-            let layers = (0..arch.layers)
-                .map(|l| {
-                    let (o, i) = arch.layer_channels(l);
+            let layers = arch
+                .layer_shapes()
+                .into_iter()
+                .map(|(o, i, k)| {
                     let a = (6.0 / ((i + o) * k * k) as f32).sqrt();
                     let w: Vec<f32> = (0..o * i * k * k).map(|_| (2.0 * rng.uniform_f32() - 1.0) * a).collect();
                     Ok((Tensor::from_vec(w, (o, i, k, k), &Device::Cpu)?, Tensor::zeros(o, DType::F32, &Device::Cpu)?))
@@ -246,6 +326,7 @@ impl Model {
             "default" => Self::embedded_default(),
             "paper" => Self::xavier(Architecture::paper(Kind::Kpcn), 0),
             "small" => Self::xavier(Architecture::small(Kind::Kpcn), 0),
+            "multiscale" => Self::xavier(Architecture::multiscale(), 0),
             "paper-dpcn" => Self::xavier(Architecture::paper(Kind::Dpcn), 0),
             "small-dpcn" => Self::xavier(Architecture::small(Kind::Dpcn), 0),
             p if p.ends_with(".safetensors") => Self::load(Path::new(p)),
@@ -267,11 +348,12 @@ impl Model {
         let meta = meta.metadata().clone().unwrap_or_default();
         let arch = Architecture::from_metadata(&meta, origin)?;
         let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)?;
-        let k = arch.conv_size;
         let branch = |name: &str| -> Result<BranchWeights, ModelError> {
-            let layers = (0..arch.layers)
-                .map(|l| {
-                    let (o, i) = arch.layer_channels(l);
+            let layers = arch
+                .layer_shapes()
+                .into_iter()
+                .enumerate()
+                .map(|(l, (o, i, k))| {
                     let get = |t: &str, shape: &[usize]| -> Result<Tensor, ModelError> {
                         let key = format!("{name}.{l}.{t}");
                         let v = tensors.get(&key).ok_or_else(|| err(format!("tensor `{key}` is missing")))?;
@@ -341,7 +423,14 @@ mod tests {
     #[test]
     fn the_network_matches_a_hand_computed_convolution() {
         // One 3×3 layer, 27 → 3 (DPCN), weights 1 on input channel 0 only, bias 0.5.
-        let arch = Architecture { kind: Kind::Dpcn, layers: 1, channels: 3, conv_size: 3, kernel_size: 1 };
+        let arch = Architecture {
+            kind: Kind::Dpcn,
+            design: Design::Flat,
+            layers: 1,
+            channels: 3,
+            conv_size: 3,
+            kernel_size: 1,
+        };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
             for t in 0..9 {
@@ -376,9 +465,18 @@ mod tests {
 
     #[test]
     fn model_files_round_trip_and_refuse_other_layouts() {
-        let m =
-            Model::xavier(Architecture { kind: Kind::Kpcn, layers: 2, channels: 4, conv_size: 3, kernel_size: 3 }, 7)
-                .unwrap();
+        let m = Model::xavier(
+            Architecture {
+                kind: Kind::Kpcn,
+                design: Design::Flat,
+                layers: 2,
+                channels: 4,
+                conv_size: 3,
+                kernel_size: 3,
+            },
+            7,
+        )
+        .unwrap();
         let bytes = m.to_bytes().unwrap();
         let back = Model::from_bytes(&bytes, "mem").unwrap();
         assert_eq!(back.arch, m.arch);

@@ -35,6 +35,9 @@ pub fn plan(width: usize, height: usize, size: usize) -> Vec<Tile> {
 /// colour region.
 pub fn tile_bytes(arch: &Architecture, t: usize) -> usize {
     let p = (t + 2 * arch.feature_radius()).pow(2);
+    if arch.design == crate::model::Design::MultiScale {
+        return p * crate::kernel::pyramid::bytes_per_pixel(arch);
+    }
     let widest = arch.channels.max(crate::features::INPUT_CHANNELS);
     let im2col = widest * arch.conv_size * arch.conv_size * p;
     let logits = arch.outputs() * t * t;

@@ -4,7 +4,9 @@
 //!
 //! A cache file is keyed by the size and modification time of its two source files and
 //! the cache format; any mismatch, or a damaged file, means it is rebuilt. Values are
-//! stored as f32, so training from the cache equals training from the EXRs bit for bit.
+//! stored as f32, so training from the cache equals training from the EXRs bit for bit,
+//! and the file is deflated (fast level): the planes hold many zeros and repeats, so a
+//! frame takes about a quarter of its f32 size — less than its EXRs.
 
 use super::data::{CANDIDATES, DataError, Frame, KEPT};
 use crate::features::Features;
@@ -14,7 +16,10 @@ use std::collections::HashMap;
 use std::path::Path;
 
 /// Bump when the stored planes or the patch selection change.
-const FORMAT: &str = "kpcn-frame-cache-1";
+const FORMAT: &str = "kpcn-frame-cache-2";
+
+/// First bytes of a cache file; a deflated safetensors file follows.
+const MAGIC: &[u8] = b"kpcn-zcache\n";
 
 /// The key a cache file must carry to be used for `noisy` + `reference`.
 pub fn key(noisy: &Path, reference: &Path) -> Option<String> {
@@ -79,13 +84,18 @@ pub fn store(path: &Path, key: &str, frame: &Frame) -> Result<(), DataError> {
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| ModelError::Io { path: dir.into(), source })?;
     }
-    crate::model::write_atomically(path, &bytes)?;
+    let mut z = flate2::write::ZlibEncoder::new(MAGIC.to_vec(), flate2::Compression::fast());
+    let io = |source| ModelError::Io { path: path.into(), source };
+    std::io::Write::write_all(&mut z, &bytes).map_err(io)?;
+    crate::model::write_atomically(path, &z.finish().map_err(io)?)?;
     Ok(())
 }
 
 /// The cached frame at `path` if it exists, is intact and carries `key`.
 pub fn load(path: &Path, key: &str) -> Option<Frame> {
-    let bytes = std::fs::read(path).ok()?;
+    let file = std::fs::read(path).ok()?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut flate2::read::ZlibDecoder::new(file.strip_prefix(MAGIC)?), &mut bytes).ok()?;
     let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
     let meta = meta.metadata().as_ref()?;
     if meta.get("key").map(String::as_str) != Some(key) {

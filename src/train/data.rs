@@ -318,7 +318,7 @@ pub fn batch(
     arch: &Architecture,
     b: Branch,
 ) -> Result<Batch, DataError> {
-    let (rf, rk) = (arch.feature_radius(), arch.kernel_radius());
+    let (rf, rk) = arch.train_margins();
     let n = frames.len();
     let (mut input, mut noisy, mut target, mut albedo, mut reference) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());

@@ -10,7 +10,9 @@ pub mod curves;
 pub mod data;
 
 use crate::features::EPSILON;
-use crate::model::{BranchWeights, Kind, Model, ModelError};
+#[cfg(doc)]
+use crate::model::Architecture;
+use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
 use candle_core::{DType, Device, Tensor, Var};
 
 /// Adam (AdamW with weight decay 0) whose state can be saved and restored exactly.
@@ -165,12 +167,20 @@ impl TrainableModel {
         })
     }
 
-    /// A branch's prediction for a batch: d̂ or ŝ, `[B, 3, p, p]`.
+    /// A branch's prediction for a batch (inputs with [`Architecture::train_margins`]
+    /// around the patches): d̂ or ŝ, `[B, 3, p, p]`.
     pub fn predict(&self, diffuse: bool, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
         let w = weights(if diffuse { &self.diffuse } else { &self.specular });
+        let arch = &self.base.arch;
+        if arch.design == Design::MultiScale {
+            let (m, _) = arch.train_margins();
+            let (_, _, h, wd) = input.dims4()?;
+            let out = multiscale::forward(arch, &w, input, noisy)?;
+            return Ok(out.narrow(2, m, h - 2 * m)?.narrow(3, m, wd - 2 * m)?);
+        }
         let out = w.forward(input)?;
-        match self.base.arch.kind {
-            Kind::Kpcn => apply_kernels(&out, noisy, self.base.arch.kernel_size),
+        match arch.kind {
+            Kind::Kpcn => apply_kernels(&out, noisy, arch.kernel_size),
             Kind::Dpcn => Ok(out),
         }
     }
@@ -368,6 +378,9 @@ pub enum TrainError {
     /// A checkpoint that does not belong to this run.
     #[error("{0}")]
     Checkpoint(String),
+    /// Options that do not fit the network.
+    #[error("{0}")]
+    Options(String),
 }
 
 /// Checkpoint file inside the output folder: the model plus optimiser state; it also loads
@@ -394,6 +407,16 @@ impl<'a> Trainer<'a> {
         let usable = data.train.iter().any(|f| f.features.width >= opts.patch && f.features.height >= opts.patch);
         if !usable {
             return Err(TrainError::NoData(opts.patch));
+        }
+        let (margin, _) = model.arch.train_margins();
+        let align = model.arch.alignment();
+        if (opts.patch + 2 * margin) % align != 0 {
+            return Err(TrainError::Options(format!(
+                "--patch {} does not suit this network: patch + {} context pixels must be a multiple of {align} (try --patch {})",
+                opts.patch,
+                2 * margin,
+                (opts.patch + 2 * margin).next_multiple_of(align) - 2 * margin
+            )));
         }
         let model = TrainableModel::new(model)?;
         Ok(Trainer {

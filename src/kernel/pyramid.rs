@@ -1,0 +1,148 @@
+//! Inference of the multi-scale network ([`crate::model::multiscale`], which defines it
+//! and evaluates it with candle for training) on one region, with our own kernels:
+//! [`super::conv`] convolutions and [`super::apply`] kernel application at every scale.
+
+use super::conv::{Planes, conv};
+use crate::features::INPUT_CHANNELS;
+use crate::model::{Architecture, BranchWeights, ModelError, multiscale};
+
+/// Working bytes per region pixel, for tile budgets: the input, the full-resolution
+/// activations, the head's logits, the colour pyramid and the coarser scales.
+pub fn bytes_per_pixel(arch: &Architecture) -> usize {
+    let k2 = arch.kernel_size * arch.kernel_size;
+    4 * (2 * INPUT_CHANNELS + arch.channels + 2 * (k2 + 1) + 12)
+}
+
+/// Denoised `c̃` (three `w × h` planes) of a `w × h` region (sides multiples of
+/// [`Architecture::alignment`]): `input` its 27 CHW feature planes, `noisy` its `c̃`.
+pub fn forward(
+    arch: &Architecture,
+    weights: &BranchWeights,
+    input: Vec<f32>,
+    noisy: Vec<f32>,
+    w: usize,
+    h: usize,
+) -> Result<[Vec<f32>; 3], ModelError> {
+    let l = arch.layers;
+    let (dec, head) = multiscale::layer_offsets(arch);
+    let layers: Vec<(Vec<f32>, Vec<f32>, usize)> = weights
+        .layers
+        .iter()
+        .map(|(wt, b)| Ok((wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?, wt.dims4()?.3)))
+        .collect::<Result<_, candle_core::Error>>()?;
+    let layer = |x: &Planes, i: usize, relu: bool| conv(x, &layers[i].0, &layers[i].1, layers[i].2, relu);
+
+    let mut enc: Vec<Planes> = Vec::with_capacity(l + 1);
+    let input = Planes::from_vec(INPUT_CHANNELS, w, h, input);
+    for s in 0..=l {
+        let x = if s == 0 { layer(&input, 0, true) } else { layer(&enc[s - 1].avg_pool2(), 2 * s, true) };
+        enc.push(layer(&x, 2 * s + 1, true));
+    }
+    drop(input);
+    // F_s: the decoder's output at scale s (the encoder's at the bottom); F_0 is unused.
+    let mut feats: Vec<Option<Planes>> = (0..=l).map(|_| None).collect();
+    for (j, s) in (1..l).rev().enumerate() {
+        let below = feats[s + 1].as_ref().unwrap_or(&enc[s + 1]);
+        feats[s] = Some(layer(&below.up_nearest().concat(&enc[s]), dec + j, true));
+    }
+    let feat = |s: usize| feats[s].as_ref().unwrap_or(&enc[s]);
+    let mut colour = vec![Planes::from_vec(3, w, h, noisy)];
+    for s in 1..l {
+        let c = colour[s - 1].avg_pool2();
+        colour.push(c);
+    }
+
+    let (k, k2) = (arch.kernel_size, arch.kernel_size * arch.kernel_size);
+    let mut out: Option<Planes> = None;
+    for (j, s) in (0..l).rev().enumerate() {
+        let (wt, b, _) = &layers[head + j];
+        let logits = if s == 0 {
+            // A 1×1 layer commutes with nearest upsampling: the upsampled half of its
+            // input is convolved at half resolution, four times cheaper.
+            let (o, c1) = (b.len(), multiscale::width(arch, 1));
+            let cin = c1 + multiscale::width(arch, 0);
+            let split = |from: usize, to: usize| -> Vec<f32> {
+                (0..o).flat_map(|r| wt[r * cin + from..r * cin + to].to_vec()).collect()
+            };
+            let coarse = conv(feat(1), &split(0, c1), &vec![0.0; o], 1, false).up_nearest();
+            let mut fine = conv(&enc[0], &split(c1, cin), b, 1, false);
+            for (f, c) in fine.data.iter_mut().zip(&coarse.data) {
+                *f += c;
+            }
+            fine
+        } else {
+            conv(feat(s), wt, b, 1, false)
+        };
+        let o = apply_replicated(&logits, &colour[s], k);
+        out = Some(match out {
+            None => o,
+            Some(coarse) => {
+                let up = coarse.up_bilinear();
+                let n = o.w * o.h;
+                let alpha: Vec<f32> = logits
+                    .plane(k2)
+                    .iter()
+                    .map(|&v| 1.0 / (1.0 + (-v.clamp(-multiscale::BLEND_LIMIT, multiscale::BLEND_LIMIT)).exp()))
+                    .collect();
+                let mut blended = o;
+                for c in 0..3 {
+                    let (dst, src) = (&mut blended.data[c * n..(c + 1) * n], up.plane(c));
+                    for ((d, &u), &a) in dst.iter_mut().zip(src).zip(&alpha) {
+                        *d = *d * (1.0 - a) + u * a;
+                    }
+                }
+                blended
+            }
+        });
+    }
+    let out = out.expect("validated: at least one level");
+    let n = w * h;
+    Ok([0, 1, 2].map(|c| out.data[c * n..(c + 1) * n].to_vec()))
+}
+
+/// Softmax kernels (the first `k²` planes of `logits`) applied to `colour`, the colour
+/// extended by replicating its edge pixels.
+fn apply_replicated(logits: &Planes, colour: &Planes, k: usize) -> Planes {
+    let (w, h, r) = (colour.w, colour.h, (k - 1) / 2);
+    let (pw, ph) = (w + 2 * r, h + 2 * r);
+    let padded: [Vec<f32>; 3] = std::array::from_fn(|c| {
+        let src = colour.plane(c);
+        let mut p = Vec::with_capacity(pw * ph);
+        for y in 0..ph {
+            let row = &src[(y.saturating_sub(r)).min(h - 1) * w..][..w];
+            p.extend((0..pw).map(|x| row[x.saturating_sub(r).min(w - 1)]));
+        }
+        p
+    });
+    let k2 = k * k;
+    let out = super::apply(&logits.data[..k2 * w * h], &padded, k, w, h);
+    Planes::from_vec(3, w, h, out.concat())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Architecture, Model};
+    use candle_core::{Device, Tensor};
+
+    #[test]
+    fn our_kernels_match_the_candle_definition() {
+        let arch = Architecture::multiscale();
+        let m = Model::xavier(arch, 5).unwrap();
+        let (w, h) = (48, 40);
+        let mut rng = crate::rng::SplitMix64(9);
+        let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
+        let noisy: Vec<f32> = (0..3 * w * h).map(|_| rng.uniform_f32() * 2.0).collect();
+        let x = Tensor::from_vec(input.clone(), (1, INPUT_CHANNELS, h, w), &Device::Cpu).unwrap();
+        let c = Tensor::from_vec(noisy.clone(), (1, 3, h, w), &Device::Cpu).unwrap();
+        let ours = forward(&arch, &m.diffuse, input, noisy, w, h).unwrap();
+        let theirs =
+            multiscale::forward(&arch, &m.diffuse, &x, &c).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        for c in 0..3 {
+            for i in 0..w * h {
+                let (a, b) = (ours[c][i], theirs[c * w * h + i]);
+                assert!((a - b).abs() < 1e-4 * (1.0 + b.abs()), "channel {c} pixel {i}: {a} vs {b}");
+            }
+        }
+    }
+}

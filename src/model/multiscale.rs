@@ -1,0 +1,208 @@
+//! The multi-scale kernel-predicting network (SPEC §5): a small U-Net whose decoder
+//! predicts 5×5 kernels at full, half and quarter resolution. Each scale's kernels are
+//! applied to the noisy colour box-filtered to that scale, and the scales are blended
+//! coarse to fine, `r_s = (1 − α_s)·o_s + α_s·up(r_{s+1})`, with `α_s` a predicted
+//! sigmoid and `up` bilinear. Softmax kernels, box filters, bilinear weights and the
+//! blend are all convex, so the output stays a convex combination of the noisy colour
+//! around the pixel, like the paper's KPCN.
+//!
+//! The network runs at full resolution for two 3×3 layers and a 1×1 head only; the rest
+//! is at ½…⅛ resolution, about 80 kFLOP per pixel against the paper's 10 MFLOP.
+//!
+//! Layers, in the model file's order (`L` = levels, `c_s = channels·(s + 1)`):
+//! encoder `E_s` two 3×3 convolutions per scale `s = 0..=L` (after a 2×2 average pool for
+//! `s > 0`); decoder `D_s` one 3×3 convolution on `nearest-up(F_{s+1}) ++ E_s` for
+//! `s = L−1..1` (`F_L = E_L`, `F_s = D_s`); heads `H_s` one 1×1 convolution per kernel
+//! scale `s = L−1..0` on `F_s` (`s > 0`) or `nearest-up(F_1) ++ E_0` (`s = 0`), giving `k²`
+//! kernel logits plus one blend logit (not at the coarsest scale).
+//!
+//! The same function is evaluated here with candle (training, autograd) and by
+//! `kernel::pyramid` (inference, our own kernels).
+
+use super::{Architecture, BranchWeights, ModelError};
+use crate::features::INPUT_CHANNELS;
+use candle_core::Tensor;
+
+/// Blend logits are clamped to this magnitude before the sigmoid, so `exp` and its
+/// gradient stay finite.
+pub const BLEND_LIMIT: f32 = 30.0;
+
+/// Width of scale `s`.
+pub fn width(a: &Architecture, s: usize) -> usize {
+    a.channels * (s + 1)
+}
+
+/// Outputs of head `s`: the kernel logits, plus a blend logit below the coarsest scale.
+pub fn head_outputs(a: &Architecture, s: usize) -> usize {
+    a.kernel_size * a.kernel_size + usize::from(s + 1 < a.layers)
+}
+
+/// Index of the first decoder layer and of the first head in [`layer_shapes`].
+pub fn layer_offsets(a: &Architecture) -> (usize, usize) {
+    let dec = 2 * (a.layers + 1);
+    (dec, dec + a.layers - 1)
+}
+
+/// (out, in, size) of every convolution.
+pub fn layer_shapes(a: &Architecture) -> Vec<(usize, usize, usize)> {
+    let (l, k) = (a.layers, a.conv_size);
+    let c = |s| width(a, s);
+    let mut v = Vec::new();
+    for s in 0..=l {
+        v.push((c(s), if s == 0 { INPUT_CHANNELS } else { c(s - 1) }, k));
+        v.push((c(s), c(s), k));
+    }
+    for s in (1..l).rev() {
+        v.push((c(s), c(s + 1) + c(s), k));
+    }
+    for s in (0..l).rev() {
+        v.push((head_outputs(a, s), if s == 0 { c(1) + c(0) } else { c(s) }, 1));
+    }
+    v
+}
+
+/// Multiply-adds ×2 per full-resolution pixel of one branch.
+pub fn flops_per_pixel(a: &Architecture) -> f64 {
+    let shapes = layer_shapes(a);
+    let (dec, head) = layer_offsets(a);
+    let scale_of = |i: usize| -> usize {
+        if i < dec {
+            i / 2
+        } else if i < head {
+            a.layers - 1 - (i - dec)
+        } else {
+            a.layers - 1 - (i - head)
+        }
+    };
+    let net: f64 = shapes
+        .iter()
+        .enumerate()
+        .map(|(i, &(o, n, k))| 2.0 * (o * n * k * k) as f64 / 4f64.powi(scale_of(i) as i32))
+        .sum();
+    let kernels: f64 =
+        (0..a.layers).map(|s| 2.0 * 3.0 * (a.kernel_size * a.kernel_size) as f64 / 4f64.powi(s as i32)).sum();
+    net + kernels
+}
+
+/// How far (in full-resolution pixels, each side) an output pixel's value reaches,
+/// rounded up to the pooling grid: beyond it, padding at a region's edge cannot change
+/// the result. Computed exactly by following, through every layer, the input span
+/// `[2^s·i + lo, 2^s·i + hi]` that pixel `i` of a scale-`s` tensor depends on.
+pub fn receptive_radius(a: &Architecture) -> usize {
+    type Span = (i64, i64);
+    let l = a.layers;
+    let px = |s: usize| 1i64 << s;
+    let grow = |(lo, hi): Span, by: i64| (lo - by, hi + by);
+    let union = |a: Span, b: Span| (a.0.min(b.0), a.1.max(b.1));
+    let c = ((a.conv_size - 1) / 2) as i64;
+    let conv = |t: Span, s: usize| grow(t, c * px(s));
+    let pool = |(lo, hi): Span, s: usize| (lo, hi + px(s)); // scale s → s + 1
+    let up_nearest = |(lo, hi): Span, s: usize| (lo - px(s), hi); // scale s + 1 → s
+    let up_bilinear = |(lo, hi): Span, s: usize| (lo - 2 * px(s), hi + px(s));
+    let mut enc: Vec<Span> = Vec::new();
+    for s in 0..=l {
+        let x = if s == 0 { (0, 0) } else { pool(enc[s - 1], s - 1) };
+        enc.push(conv(conv(x, s), s));
+    }
+    let mut feats = enc.clone();
+    for s in (1..l).rev() {
+        feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s);
+    }
+    let mut colour: Vec<Span> = vec![(0, 0)];
+    for s in 1..l {
+        colour.push(pool(colour[s - 1], s - 1));
+    }
+    let r = ((a.kernel_size - 1) / 2) as i64;
+    let mut out: Option<Span> = None;
+    for s in (0..l).rev() {
+        let logits = if s == 0 { union(up_nearest(feats[1], 0), enc[0]) } else { feats[s] };
+        let o = union(logits, grow(colour[s], r * px(s)));
+        out = Some(match out {
+            None => o,
+            Some(coarse) => union(o, up_bilinear(coarse, s)),
+        });
+    }
+    let (lo, hi) = out.expect("at least one level");
+    (lo.unsigned_abs().max(hi.unsigned_abs()) as usize).next_multiple_of(a.alignment())
+}
+
+/// 2× nearest-neighbour upsampling of `[B, C, H, W]`. Composed from broadcasts: candle
+/// 0.11's own `upsample_nearest2d` backward overwrites instead of adding to the gradient
+/// of a tensor that has other uses.
+pub fn up_nearest(x: &Tensor) -> Result<Tensor, ModelError> {
+    let (b, c, h, w) = x.dims4()?;
+    let y = x.reshape((b, c, h, 1, w, 1))?.broadcast_as((b, c, h, 2, w, 2))?.contiguous()?;
+    Ok(y.reshape((b, c, 2 * h, 2 * w))?)
+}
+
+/// 2× bilinear upsampling of `[B, C, H, W]` (pixel centres at half-integers, edges
+/// replicated): each output is ¾ of its parent plus ¼ of the parent's neighbour on its
+/// side, along each axis.
+pub fn up_bilinear(x: &Tensor) -> Result<Tensor, ModelError> {
+    let along = |x: &Tensor, dim: usize| -> Result<Tensor, ModelError> {
+        let n = x.dim(dim)?;
+        let before = x.pad_with_same(dim, 1, 0)?.narrow(dim, 0, n)?;
+        let after = x.pad_with_same(dim, 0, 1)?.narrow(dim, 1, n)?;
+        let even = ((x * 0.75)? + (before * 0.25)?)?;
+        let odd = ((x * 0.75)? + (after * 0.25)?)?;
+        let mut dims = x.dims().to_vec();
+        dims[dim] *= 2;
+        Ok(Tensor::stack(&[even, odd], dim + 1)?.reshape(dims)?)
+    };
+    along(&along(x, 3)?, 2)
+}
+
+/// `1 / (1 + e^{−x})` with `x` clamped to ±[`BLEND_LIMIT`].
+pub fn sigmoid(x: &Tensor) -> Result<Tensor, ModelError> {
+    Ok((x.clamp(-BLEND_LIMIT, BLEND_LIMIT)?.neg()?.exp()? + 1.0)?.recip()?)
+}
+
+/// Evaluates a branch on a region: features `[B, 27, S, S']` and the noisy colour `c̃`
+/// `[B, 3, S, S']` of the same pixels (sides multiples of [`Architecture::alignment`]);
+/// returns the denoised `c̃` `[B, 3, S, S']`. Convolutions pad with zeros and kernels
+/// replicate the edge, so only pixels at least [`receptive_radius`] inside the region
+/// equal the whole frame's.
+pub fn forward(a: &Architecture, w: &BranchWeights, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
+    let l = a.layers;
+    let (dec, head) = layer_offsets(a);
+    let conv = |x: &Tensor, i: usize, relu: bool| -> Result<Tensor, ModelError> {
+        let (wt, b) = &w.layers[i];
+        let (o, _, k, _) = wt.dims4()?;
+        let y = x.conv2d(wt, (k - 1) / 2, 1, 1, 1)?.broadcast_add(&b.reshape((1, o, 1, 1))?)?;
+        Ok(if relu { y.relu()? } else { y })
+    };
+    let mut enc: Vec<Tensor> = Vec::with_capacity(l + 1);
+    for s in 0..=l {
+        let x = if s == 0 { input.clone() } else { enc[s - 1].avg_pool2d(2)? };
+        let x = conv(&x, 2 * s, true)?;
+        enc.push(conv(&x, 2 * s + 1, true)?);
+    }
+    let mut feats: Vec<Tensor> = enc.clone();
+    for (j, s) in (1..l).rev().enumerate() {
+        let x = Tensor::cat(&[up_nearest(&feats[s + 1])?, enc[s].clone()], 1)?;
+        feats[s] = conv(&x, dec + j, true)?;
+    }
+    let mut colour = vec![noisy.clone()];
+    for s in 1..l {
+        let c = colour[s - 1].avg_pool2d(2)?;
+        colour.push(c);
+    }
+    let (k, r) = (a.kernel_size, (a.kernel_size - 1) / 2);
+    let mut out: Option<Tensor> = None;
+    for (j, s) in (0..l).rev().enumerate() {
+        let x = if s == 0 { Tensor::cat(&[up_nearest(&feats[1])?, enc[0].clone()], 1)? } else { feats[s].clone() };
+        let h = conv(&x, head + j, false)?;
+        let logits = h.narrow(1, 0, k * k)?;
+        let padded = colour[s].pad_with_same(2, r, r)?.pad_with_same(3, r, r)?;
+        let o = crate::train::apply_kernels(&logits, &padded, k)?;
+        out = Some(match out {
+            None => o,
+            Some(coarse) => {
+                let alpha = sigmoid(&h.narrow(1, k * k, 1)?)?;
+                let up = up_bilinear(&coarse)?;
+                (o.broadcast_mul(&(1.0 - &alpha)?)? + up.broadcast_mul(&alpha)?)?
+            }
+        });
+    }
+    Ok(out.expect("validated: at least one level"))
+}
