@@ -25,7 +25,7 @@ pub struct DenoiseArgs {
     /// Name of the denoised layer (`NAME.R/G/B`).
     #[arg(long, default_value = "denoised", value_name = "NAME")]
     pub layer: String,
-    /// `default` (embedded), `paper`, `small` (untrained presets) or a .safetensors file.
+    /// `default` (embedded), `paper`, `small`, `multiscale` (untrained presets) or a .safetensors file.
     #[arg(long, default_value = "default", value_name = "MODEL")]
     pub model: String,
     /// Also write NAME_diffuse and NAME_specular layers; they add up to NAME exactly.

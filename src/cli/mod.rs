@@ -43,7 +43,7 @@ pub enum Command {
     /// Denoise a layered EXR or an image sequence, adding a denoised layer to a copy of each
     /// input (every channel and all metadata kept; written atomically).
     ///
-    /// The embedded default is a small KPCN trained on simulator scenes (`kpcn model info`);
+    /// The embedded default is a KPCN trained on simulator scenes (`kpcn model info` says which);
     /// `--model` picks another.
     #[command(
         after_help = "Examples:\n  kpcn denoise frame.exr -o frame.denoised.exr\n  kpcn denoise shot/render.####.exr -o out/render.####.exr --frames 1001-1100 --aovs\n  kpcn denoise render.%04d.exr -o den.%04d.exr -n"

@@ -39,12 +39,6 @@ impl Planes {
         &self.data[i * self.w * self.h..(i + 1) * self.w * self.h]
     }
 
-    /// Channels `range` as their own planes.
-    pub fn channels(&self, range: std::ops::Range<usize>) -> Planes {
-        let n = self.w * self.h;
-        Planes::from_vec(range.len(), self.w, self.h, self.data[range.start * n..range.end * n].to_vec())
-    }
-
     /// `self` then `other` (same size), channel-wise.
     pub fn concat(mut self, other: &Planes) -> Planes {
         assert_eq!((self.w, self.h), (other.w, other.h), "concatenated planes differ in size");
@@ -124,6 +118,13 @@ struct RowsPtr(*mut f32);
 unsafe impl Send for RowsPtr {}
 unsafe impl Sync for RowsPtr {}
 
+impl RowsPtr {
+    /// The pointer (a method, so closures capture the `Sync` wrapper, not the field).
+    fn get(self) -> *mut f32 {
+        self.0
+    }
+}
+
 /// `k×k` convolution (odd `k`) of `input` with `weight` `[out][in][k][k]` plus `bias`,
 /// zero padding so the output has the input's size; ReLU when `relu`.
 pub fn conv(input: &Planes, weight: &[f32], bias: &[f32], k: usize, relu: bool) -> Planes {
@@ -148,10 +149,9 @@ pub fn conv(input: &Planes, weight: &[f32], bias: &[f32], k: usize, relu: bool) 
     let ptr = RowsPtr(out.data.as_mut_ptr());
     let job = Job { padded: &padded, weight, bias, cin, cout, k, w, h, pw, ph, relu };
     (0..h).into_par_iter().for_each(|y| {
-        let ptr = ptr;
         // SAFETY: row `y` of every output plane is written by this task only, inside the
         // buffer (`y < h`); `out` outlives the parallel loop.
-        unsafe { job.row(y, ptr.0) }
+        unsafe { job.row(y, ptr.get()) }
     });
     out
 }
