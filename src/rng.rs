@@ -24,6 +24,11 @@ impl SplitMix64 {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
     }
 
+    /// `n` values uniform in [−½, ½) (test data).
+    pub fn centred(&mut self, n: usize) -> Vec<f32> {
+        (0..n).map(|_| self.uniform_f32() - 0.5).collect()
+    }
+
     /// Uniform in [0, 1) with 53 bits.
     pub fn uniform_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64

@@ -213,18 +213,7 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
     let data = Dataset::load(dir.path(), 3, false).unwrap();
-    let ms = Model::xavier(
-        Architecture {
-            kind: Kind::Kpcn,
-            design: Design::MultiScale,
-            layers: 2,
-            channels: 4,
-            conv_size: 3,
-            kernel_size: 3,
-        },
-        2,
-    )
-    .unwrap();
+    let ms = crate::util::tiny_multiscale(2);
     // 9 + 2 × 16 context pixels is not a multiple of 4.
     let e = Trainer::new(&ms, &data, TrainOptions { patch: 9, ..options(10) }).err().expect("refused").to_string();
     assert!(e.contains("--patch 9") && e.contains("try --patch 12"), "{e}");

@@ -2,14 +2,14 @@
 //! Open Image Denoise measured in the same run on the same frame (the machine is shared
 //! and noisy, so only same-run ratios mean anything).
 
-use super::study::{Oidn, oidn, oidn_available};
+use super::study::{Oidn, oidn};
 use crate::denoise::{Denoiser, Options};
 use crate::io::layout::Mapping;
 use crate::io::{FrameBuffers, WriteOptions};
 use crate::model::Model;
 use crate::sim::families::generate;
 use crate::sim::{RenderOptions, render_to_dir};
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::Args;
 
 /// Arguments of `kpcn speed`.
@@ -39,12 +39,7 @@ pub struct SpeedArgs {
 pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     let (w, h) = args.resolution;
     let desc = generate(&args.family, 1).with_context(|| format!("--family: no family `{}`", args.family))?;
-    let use_oidn = match args.oidn {
-        Oidn::Off => false,
-        Oidn::Auto => oidn_available(),
-        Oidn::On if oidn_available() => true,
-        Oidn::On => bail!("--oidn on: `python3 -c \"import pyoidn, numpy\"` fails — pip install pyoidn numpy"),
-    };
+    let use_oidn = args.oidn.enabled()?;
     let threads = args.threads.max(1);
     let dir = std::env::temp_dir().join(format!("kpcn-speed-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;

@@ -65,6 +65,18 @@ pub enum Oidn {
     Off,
 }
 
+impl Oidn {
+    /// Whether OIDN runs: `on` fails when it cannot.
+    pub(super) fn enabled(self) -> anyhow::Result<bool> {
+        Ok(match self {
+            Oidn::Off => false,
+            Oidn::Auto => oidn_available(),
+            Oidn::On if oidn_available() => true,
+            Oidn::On => bail!("--oidn on: `python3 -c \"import pyoidn, numpy\"` fails — pip install pyoidn numpy"),
+        })
+    }
+}
+
 /// Reads raw f32 colour/albedo/normal (h × w × 3), denoises with OIDN, writes raw f32 and
 /// prints the filter's seconds (after a warm-up on a tiny image, as kpcn's model is loaded
 /// before timing too).
@@ -172,12 +184,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
             bail!("--families: no family `{f}` — one of {}", all.join(", "));
         }
     }
-    let use_oidn = match args.oidn {
-        Oidn::Off => false,
-        Oidn::Auto => oidn_available(),
-        Oidn::On if oidn_available() => true,
-        Oidn::On => bail!("--oidn on: `python3 -c \"import pyoidn, numpy\"` fails — pip install pyoidn numpy"),
-    };
+    let use_oidn = args.oidn.enabled()?;
     let threads = args.threads.max(1);
     let mut methods = Vec::new();
     for m in args.models.split(',').map(str::trim) {

@@ -289,8 +289,7 @@ mod tests {
     use candle_core::{Device, Tensor};
 
     fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut rng = crate::rng::SplitMix64(seed);
-        (0..n).map(|_| rng.uniform_f32() - 0.5).collect()
+        crate::rng::SplitMix64(seed).centred(n)
     }
 
     #[test]

@@ -214,8 +214,7 @@ mod tests {
     use crate::kernel;
 
     fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut rng = crate::rng::SplitMix64(seed);
-        (0..n).map(|_| rng.uniform_f32() - 0.5).collect()
+        crate::rng::SplitMix64(seed).centred(n)
     }
 
     #[test]

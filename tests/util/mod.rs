@@ -98,3 +98,17 @@ pub fn mismatched_parts(path: &Path) {
 pub fn garbage(path: &Path) {
     std::fs::write(path, (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect::<Vec<_>>()).unwrap();
 }
+
+/// A tiny multi-scale KPCN (2 pooling levels, 4…12 channels, 3×3 kernels): fast in tests.
+pub fn tiny_multiscale(seed: u64) -> kpcn::model::Model {
+    use kpcn::model::{Architecture, Design, Kind, Model};
+    let arch = Architecture {
+        kind: Kind::Kpcn,
+        design: Design::MultiScale,
+        layers: 2,
+        channels: 4,
+        conv_size: 3,
+        kernel_size: 3,
+    };
+    Model::xavier(arch, seed).unwrap()
+}
