@@ -47,7 +47,7 @@ pub enum Preset {
     /// 6 layers × 32 channels, 3×3, 11×11 kernels.
     Small,
     /// U-Net with 3 pooling levels (16…64 channels), 5×5 kernels at 3 scales, blended
-    /// (KPCN only; about 80 kFLOP per pixel).
+    /// (KPCN only; 93 kFLOP per pixel against `small`'s 319 k).
     Multiscale,
 }
 

@@ -81,6 +81,8 @@ pub struct Denoiser {
     model: Model,
     options: Options,
     pool: rayon::ThreadPool,
+    /// The diffuse and specular weights as plain arrays, for a multi-scale model.
+    pyramid: Option<[crate::kernel::pyramid::Weights; 2]>,
 }
 
 impl Denoiser {
@@ -91,7 +93,14 @@ impl Denoiser {
             b = b.num_threads(n.max(1));
         }
         let pool = b.build().map_err(|_| DenoiseError::Threads(options.threads.unwrap_or(0)))?;
-        Ok(Denoiser { model, options, pool })
+        let pyramid = match model.arch.design {
+            Design::MultiScale => {
+                let w = crate::kernel::pyramid::Weights::new;
+                Some([w(&model.diffuse)?, w(&model.specular)?])
+            }
+            Design::Flat => None,
+        };
+        Ok(Denoiser { model, options, pool, pyramid })
     }
 
     /// The model.
@@ -216,11 +225,12 @@ impl Denoiser {
         let (x0, y0) = (t.x as isize - r as isize, t.y as isize - r as isize);
         let input = f.branch_input(b, x0, y0, rw, rh);
         let noisy = f.region(&crate::eval::rgb(f.colour(b)), x0, y0, rw, rh);
+        let [diffuse, specular] = self.pyramid.as_ref().expect("built in new for a multi-scale model");
         let weights = match b {
-            Branch::Diffuse => &self.model.diffuse,
-            Branch::Specular => &self.model.specular,
+            Branch::Diffuse => diffuse,
+            Branch::Specular => specular,
         };
-        let out = crate::kernel::pyramid::forward(arch, weights, input, noisy, rw, rh)?;
+        let out = crate::kernel::pyramid::forward(arch, weights, input, noisy, rw, rh);
         Ok(out.map(|plane| {
             let mut v = Vec::with_capacity(t.w * t.h);
             for y in r..r + t.h {

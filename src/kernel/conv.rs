@@ -64,6 +64,37 @@ impl Planes {
         out
     }
 
+    /// Every value clamped to the largest of its 8 neighbours (edges replicated): an
+    /// isolated outlier (a firefly) takes its brightest neighbour's value, while anything
+    /// at least two pixels wide (an edge, a line, a highlight) keeps its extent, its peak
+    /// lowered at most to its second-brightest pixel. The
+    /// result is still a value of the neighbourhood, so a convex filter of it stays in
+    /// the range of the original.
+    pub fn clamp_to_neighbours(&self) -> Planes {
+        let (w, h) = (self.w, self.h);
+        let mut out = self.clone();
+        for c in 0..self.c {
+            let src = self.plane(c);
+            let dst = &mut out.data[c * w * h..(c + 1) * w * h];
+            for y in 0..h {
+                let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| &src[r * w..(r + 1) * w]);
+                for x in 0..w {
+                    let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
+                    let mut most = f32::NEG_INFINITY;
+                    for (i, row) in rows.iter().enumerate() {
+                        for (j, &cx) in cols.iter().enumerate() {
+                            if (i, j) != (1, 1) {
+                                most = most.max(row[cx]);
+                            }
+                        }
+                    }
+                    dst[y * w + x] = src[y * w + x].min(most);
+                }
+            }
+        }
+        out
+    }
+
     /// 2× nearest-neighbour upsampling.
     pub fn up_nearest(&self) -> Planes {
         let (w, h) = (self.w * 2, self.h * 2);
@@ -309,6 +340,20 @@ mod tests {
                 assert!((a - b).abs() < 1e-5, "{cin}→{cout} k{k} {w}×{h} at {i}: {a} vs {b}");
             }
         }
+    }
+
+    #[test]
+    fn clamping_to_neighbours_removes_isolated_outliers_only() {
+        let mut x = vec![0.5f32; 6 * 5];
+        x[2 * 6 + 1] = 40.0; // a firefly
+        x[6 + 4] = 9.0; // a two-pixel highlight
+        x[2 * 6 + 4] = 8.0;
+        x[4 * 6 + 5] = 0.0; // a dark pixel in a corner
+        let p = Planes::from_vec(1, 6, 5, x.clone()).clamp_to_neighbours();
+        let mut want = x;
+        want[2 * 6 + 1] = 0.5;
+        want[6 + 4] = 8.0;
+        assert_eq!(p.data, want);
     }
 
     #[test]

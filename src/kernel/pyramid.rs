@@ -13,23 +13,39 @@ pub fn bytes_per_pixel(arch: &Architecture) -> usize {
     4 * (2 * INPUT_CHANNELS + arch.channels + 2 * (k2 + 1) + 12)
 }
 
+/// One branch's convolutions as plain arrays, converted from the model's tensors once
+/// per [`crate::denoise::Denoiser`] rather than once per tile.
+#[derive(Debug, Clone)]
+pub struct Weights {
+    /// Per layer: the `[out, in, k, k]` weights, the bias and `k`.
+    layers: Vec<(Vec<f32>, Vec<f32>, usize)>,
+}
+
+impl Weights {
+    /// Copies a branch's tensors.
+    pub fn new(weights: &BranchWeights) -> Result<Weights, ModelError> {
+        let layers = weights
+            .layers
+            .iter()
+            .map(|(wt, b)| Ok((wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?, wt.dims4()?.3)))
+            .collect::<Result<_, candle_core::Error>>()?;
+        Ok(Weights { layers })
+    }
+}
+
 /// Denoised `c̃` (three `w × h` planes) of a `w × h` region (sides multiples of
 /// [`Architecture::alignment`]): `input` its 27 CHW feature planes, `noisy` its `c̃`.
 pub fn forward(
     arch: &Architecture,
-    weights: &BranchWeights,
+    weights: &Weights,
     input: Vec<f32>,
     noisy: Vec<f32>,
     w: usize,
     h: usize,
-) -> Result<[Vec<f32>; 3], ModelError> {
+) -> [Vec<f32>; 3] {
     let l = arch.layers;
     let (dec, head) = multiscale::layer_offsets(arch);
-    let layers: Vec<(Vec<f32>, Vec<f32>, usize)> = weights
-        .layers
-        .iter()
-        .map(|(wt, b)| Ok((wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?, wt.dims4()?.3)))
-        .collect::<Result<_, candle_core::Error>>()?;
+    let layers = &weights.layers;
     let layer = |x: &Planes, i: usize, relu: bool| conv(x, &layers[i].0, &layers[i].1, layers[i].2, relu);
 
     let mut enc: Vec<Planes> = Vec::with_capacity(l + 1);
@@ -46,11 +62,7 @@ pub fn forward(
         feats[s] = Some(layer(&below.up_nearest().concat(&enc[s]), dec + j, true));
     }
     let feat = |s: usize| feats[s].as_ref().unwrap_or(&enc[s]);
-    let mut colour = vec![Planes::from_vec(3, w, h, noisy)];
-    for s in 1..l {
-        let c = colour[s - 1].avg_pool2();
-        colour.push(c);
-    }
+    let colour = multiscale::colour_pyramid(Planes::from_vec(3, w, h, noisy), l);
 
     let (k, k2) = (arch.kernel_size, arch.kernel_size * arch.kernel_size);
     let mut out: Option<Planes> = None;
@@ -97,7 +109,7 @@ pub fn forward(
     }
     let out = out.expect("validated: at least one level");
     let n = w * h;
-    Ok([0, 1, 2].map(|c| out.data[c * n..(c + 1) * n].to_vec()))
+    [0, 1, 2].map(|c| out.data[c * n..(c + 1) * n].to_vec())
 }
 
 /// Softmax kernels (the first `k²` planes of `logits`) applied to `colour`, the colour
@@ -135,13 +147,15 @@ mod tests {
         let noisy: Vec<f32> = (0..3 * w * h).map(|_| rng.uniform_f32() * 2.0).collect();
         let x = Tensor::from_vec(input.clone(), (1, INPUT_CHANNELS, h, w), &Device::Cpu).unwrap();
         let c = Tensor::from_vec(noisy.clone(), (1, 3, h, w), &Device::Cpu).unwrap();
-        let ours = forward(&arch, &m.diffuse, input, noisy, w, h).unwrap();
-        let theirs =
-            multiscale::forward(&arch, &m.diffuse, &x, &c).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        for c in 0..3 {
-            for i in 0..w * h {
-                let (a, b) = (ours[c][i], theirs[c * w * h + i]);
-                assert!((a - b).abs() < 1e-4 * (1.0 + b.abs()), "channel {c} pixel {i}: {a} vs {b}");
+        for (branch, weights) in [("diffuse", &m.diffuse), ("specular", &m.specular)] {
+            let ours = forward(&arch, &Weights::new(weights).unwrap(), input.clone(), noisy.clone(), w, h);
+            let theirs = multiscale::forward(&arch, weights, &x, &c).unwrap();
+            let theirs = theirs.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            for c in 0..3 {
+                for i in 0..w * h {
+                    let (a, b) = (ours[c][i], theirs[c * w * h + i]);
+                    assert!((a - b).abs() < 1e-4 * (1.0 + b.abs()), "{branch} channel {c} pixel {i}: {a} vs {b}");
+                }
             }
         }
     }

@@ -320,7 +320,8 @@ impl Model {
         Self::from_bytes(DEFAULT_MODEL, "embedded default model")
     }
 
-    /// `default`, a preset name (`paper`, `small`: untrained, Xavier seed 0) or a file path.
+    /// `default`, a preset name (`paper`, `small`, `multiscale`: untrained, Xavier seed 0) or a
+    /// file path.
     pub fn resolve(name: &str) -> Result<Model, ModelError> {
         match name {
             "default" => Self::embedded_default(),
@@ -498,6 +499,6 @@ mod tests {
     #[test]
     fn the_embedded_default_loads() {
         let m = Model::embedded_default().unwrap();
-        assert_eq!(m.arch, Architecture::small(Kind::Kpcn));
+        assert_eq!(m.arch, Architecture::multiscale());
     }
 }
