@@ -67,9 +67,8 @@ impl Planes {
     /// Every value clamped to the largest of its 8 neighbours (edges replicated): an
     /// isolated outlier (a firefly) takes its brightest neighbour's value, while anything
     /// at least two pixels wide (an edge, a line, a highlight) keeps its extent, its peak
-    /// lowered at most to its second-brightest pixel. The
-    /// result is still a value of the neighbourhood, so a convex filter of it stays in
-    /// the range of the original.
+    /// lowered at most to its second-brightest pixel. The result is still a value of the
+    /// neighbourhood, so a convex filter of it stays in the range of the original.
     pub fn clamp_to_neighbours(&self) -> Planes {
         let (w, h) = (self.w, self.h);
         let mut out = self.clone();

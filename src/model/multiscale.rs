@@ -2,11 +2,10 @@
 //! predicts 5×5 kernels at full, half and quarter resolution. Each scale's kernels are
 //! applied to the noisy colour at that scale ([`colour_pyramid`]: isolated fireflies
 //! clamped to their neighbours, then 2×2 box averages), and the scales are blended
-//! coarse to fine,
-//! `r_s = (1 − α_s)·o_s + α_s·up(r_{s+1})`, with `α_s` a predicted sigmoid and `up`
-//! bilinear. The clamp, softmax kernels, box averages, bilinear weights and the blend all
-//! pick or average values of the neighbourhood, so the output stays inside the range of
-//! the noisy colour around the pixel, like the paper's KPCN.
+//! coarse to fine, `r_s = (1 − α_s)·o_s + α_s·up(r_{s+1})`, with `α_s` a predicted
+//! sigmoid and `up` bilinear. The clamp, softmax kernels, box averages, bilinear
+//! weights and the blend all pick or average values of the neighbourhood, so the output
+//! stays inside the range of the noisy colour around the pixel, like the paper's KPCN.
 //!
 //! The network runs at full resolution for two 3×3 layers and a 1×1 head only; the rest
 //! is at ½…⅛ resolution: 93 kFLOP per pixel for both branches, against 319 k for the
