@@ -316,19 +316,16 @@ impl Job<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::SplitMix64;
     use candle_core::{Device, Tensor};
-
-    fn values(n: usize, seed: u64) -> Vec<f32> {
-        crate::rng::SplitMix64(seed).centred(n)
-    }
 
     #[test]
     fn matches_candle_conv2d() {
         // Widths around the 16-pixel blocks, channel counts around the 4-channel blocks.
         for (cin, cout, k, w, h) in [(3, 5, 3, 37, 6), (8, 4, 1, 16, 3), (27, 9, 3, 20, 5), (2, 3, 3, 5, 4)] {
-            let x = values(cin * w * h, 1);
-            let wt = values(cout * cin * k * k, 2);
-            let b = values(cout, 3);
+            let x = SplitMix64(1).centred(cin * w * h);
+            let wt = SplitMix64(2).centred(cout * cin * k * k);
+            let b = SplitMix64(3).centred(cout);
             let ours = conv(&Planes::from_vec(cin, w, h, x.clone()), &wt, &b, k, true);
             let xt = Tensor::from_vec(x, (1, cin, h, w), &Device::Cpu).unwrap();
             let wtt = Tensor::from_vec(wt, (cout, cin, k, k), &Device::Cpu).unwrap();
@@ -359,9 +356,9 @@ mod tests {
     fn a_pixel_does_not_depend_on_where_the_plane_ends() {
         // The same 40×4 content seen whole and as its left 24 columns: identical bits.
         let (cin, cout) = (5, 6);
-        let x = values(cin * 40 * 4, 4);
-        let wt = values(cout * cin * 9, 5);
-        let b = values(cout, 6);
+        let x = SplitMix64(4).centred(cin * 40 * 4);
+        let wt = SplitMix64(5).centred(cout * cin * 9);
+        let b = SplitMix64(6).centred(cout);
         let whole = conv(&Planes::from_vec(cin, 40, 4, x.clone()), &wt, &b, 3, false);
         let left: Vec<f32> = x.chunks(40).flat_map(|r| r[..24].to_vec()).collect();
         let part = conv(&Planes::from_vec(cin, 24, 4, left), &wt, &b, 3, false);

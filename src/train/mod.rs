@@ -212,16 +212,13 @@ pub fn tensor(data: Vec<f32>, shape: (usize, usize, usize, usize)) -> Result<Ten
 mod tests {
     use super::*;
     use crate::kernel;
-
-    fn values(n: usize, seed: u64) -> Vec<f32> {
-        crate::rng::SplitMix64(seed).centred(n)
-    }
+    use crate::rng::SplitMix64;
 
     #[test]
     fn composed_kernels_match_the_fast_inference_kernels() {
         let (k, h, w) = (3, 4, 5);
-        let logits = values(k * k * h * w, 1).iter().map(|v| v * 6.0).collect::<Vec<_>>();
-        let noisy: Vec<f32> = values(3 * (h + 2) * (w + 2), 2);
+        let logits = SplitMix64(1).centred(k * k * h * w).iter().map(|v| v * 6.0).collect::<Vec<_>>();
+        let noisy: Vec<f32> = SplitMix64(2).centred(3 * (h + 2) * (w + 2));
         let a = apply_kernels(
             &tensor(logits.clone(), (1, k * k, h, w)).unwrap(),
             &tensor(noisy.clone(), (1, 3, h + 2, w + 2)).unwrap(),
@@ -245,9 +242,10 @@ mod tests {
     #[test]
     fn kernel_gradients_match_finite_differences() {
         let (k, h, w) = (3, 2, 3);
-        let logits = Var::from_vec(values(k * k * h * w, 3), (1, k * k, h, w), &Device::Cpu).unwrap();
-        let noisy = Var::from_vec(values(3 * (h + 2) * (w + 2), 4), (1, 3, h + 2, w + 2), &Device::Cpu).unwrap();
-        let probe = tensor(values(3 * h * w, 5), (1, 3, h, w)).unwrap();
+        let logits = Var::from_vec(SplitMix64(3).centred(k * k * h * w), (1, k * k, h, w), &Device::Cpu).unwrap();
+        let noisy =
+            Var::from_vec(SplitMix64(4).centred(3 * (h + 2) * (w + 2)), (1, 3, h + 2, w + 2), &Device::Cpu).unwrap();
+        let probe = tensor(SplitMix64(5).centred(3 * h * w), (1, 3, h, w)).unwrap();
         let loss = |l: &Tensor, n: &Tensor| -> f64 {
             let out = apply_kernels(l, n, k).unwrap();
             (out * &probe).unwrap().sum_all().unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
