@@ -44,6 +44,7 @@ fn options(steps: u64) -> TrainOptions {
         importance: true,
         checkpoint_every: 100,
         validate_every: 100,
+        ops: Default::default(),
     }
 }
 

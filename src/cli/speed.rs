@@ -2,14 +2,20 @@
 //! Open Image Denoise measured in the same run on the same frame (the machine is shared
 //! and noisy, so only same-run ratios mean anything).
 
+use super::eval::Format;
 use super::study::{Oidn, oidn};
 use crate::denoise::{Denoiser, Options};
 use crate::io::layout::Mapping;
 use crate::io::{FrameBuffers, WriteOptions};
+use crate::kernel::conv::{ConvLayer, conv};
+use crate::kernel::ops::conv2d;
+use crate::kernel::planes::Planes;
 use crate::model::Model;
+use crate::model::{Design, multiscale};
 use crate::sim::families::generate;
 use crate::sim::{RenderOptions, render_to_dir};
 use anyhow::Context;
+use candle_core::{Device, Tensor, Var};
 use clap::Args;
 
 /// Arguments of `kpcn speed`.
@@ -33,10 +39,22 @@ pub struct SpeedArgs {
     /// Threads.
     #[arg(long, default_value_t = 2, value_name = "N")]
     pub threads: usize,
+    /// Instead of whole frames, time each convolution shape of the first model: forward at
+    /// the frame size's scales (as `kpcn denoise` runs it) and forward + backward on a
+    /// training batch (6 patches of 64² plus context). `benches/conv_vs_torch.py` sets
+    /// PyTorch beside these numbers.
+    #[arg(long)]
+    pub layers: bool,
+    /// Output format of `--layers`.
+    #[arg(long, value_enum, default_value_t = Format::Table)]
+    pub format: Format,
 }
 
 /// Runs `kpcn speed`.
 pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
+    if args.layers {
+        return layers(args);
+    }
     let (w, h) = args.resolution;
     let desc = generate(&args.family, 1).with_context(|| format!("--family: no family `{}`", args.family))?;
     let use_oidn = args.oidn.enabled()?;
@@ -81,4 +99,136 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     })();
     let _ = std::fs::remove_dir_all(&dir);
     result
+}
+
+/// One timed convolution shape.
+struct LayerTime {
+    /// `fwd` (inference) or `fwd+bwd` (a training batch).
+    pass: &'static str,
+    cin: usize,
+    cout: usize,
+    k: usize,
+    batch: usize,
+    w: usize,
+    h: usize,
+    seconds: f64,
+}
+
+impl LayerTime {
+    /// Useful FLOPs: 2·cout·cin·k² per pixel forward, three times that forward + backward.
+    fn gflop(&self) -> f64 {
+        let pass = if self.pass == "fwd" { 1.0 } else { 3.0 };
+        pass * 2.0 * (self.cout * self.cin * self.k * self.k * self.batch * self.w * self.h) as f64 / 1e9
+    }
+}
+
+/// The fastest of `repeat` runs of `f`, after one warm-up run.
+fn fastest(repeat: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
+    f()?;
+    let mut best = f64::INFINITY;
+    for _ in 0..repeat.max(1) {
+        let t = std::time::Instant::now();
+        f()?;
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    Ok(best)
+}
+
+/// `kpcn speed --layers`.
+fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
+    let name = args.models.split(',').next().unwrap_or("default").trim();
+    let model = Model::resolve(name)?;
+    let arch = model.arch;
+    anyhow::ensure!(arch.design == Design::MultiScale, "--layers times the multi-scale design; `{name}` is flat");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(args.threads.max(1)).build()?;
+    let (fw, fh) = args.resolution;
+    let (m, _) = arch.train_margins();
+    let (batch, side) = (6, 64 + 2 * m);
+    let shapes = multiscale::layer_shapes(&arch);
+    // Inference runs the full-resolution head split in two (see kernel::pyramid).
+    let (_, head) = multiscale::layer_offsets(&arch);
+    let last = shapes.len() - 1;
+    let (c1, outs) = (multiscale::width(&arch, 1), shapes[last].0);
+    let mut inference: Vec<(usize, usize, usize, usize)> = Vec::new();
+    for (i, &(o, n, k)) in shapes.iter().enumerate() {
+        let s = multiscale::layer_scale(&arch, i);
+        if i == last && i >= head && s == 0 {
+            inference.push((o, c1, 1, 1));
+            inference.push((outs, n - c1, 1, 0));
+        } else {
+            inference.push((o, n, k, s));
+        }
+    }
+    let mut rows = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    pool.install(|| -> anyhow::Result<()> {
+        for &(cout, cin, k, s) in &inference {
+            let (w, h) = (fw >> s, fh >> s);
+            if !seen.insert(("fwd", cout, cin, k, w, h)) {
+                continue;
+            }
+            let x = Planes::from_vec(cin, w, h, crate::rng::SplitMix64(1).centred(cin * w * h));
+            let layer =
+                ConvLayer::new(&crate::rng::SplitMix64(2).centred(cout * cin * k * k), &vec![0.0; cout], cin, k);
+            let seconds = fastest(args.repeat, || {
+                std::hint::black_box(conv(&x, &layer, true));
+                Ok(())
+            })?;
+            rows.push(LayerTime { pass: "fwd", cin, cout, k, batch: 1, w, h, seconds });
+        }
+        for (i, &(cout, cin, k)) in shapes.iter().enumerate() {
+            let w = side >> multiscale::layer_scale(&arch, i);
+            if !seen.insert(("fwd+bwd", cout, cin, k, w, w)) {
+                continue;
+            }
+            let dev = Device::Cpu;
+            let x = Var::from_vec(crate::rng::SplitMix64(3).centred(batch * cin * w * w), (batch, cin, w, w), &dev)?;
+            let wt = Var::from_vec(crate::rng::SplitMix64(4).centred(cout * cin * k * k), (cout, cin, k, k), &dev)?;
+            let b = Var::from_vec(vec![0.01f32; cout], cout, &dev)?;
+            let g =
+                Tensor::from_vec(crate::rng::SplitMix64(5).centred(batch * cout * w * w), (batch, cout, w, w), &dev)?;
+            let seconds = fastest(args.repeat, || {
+                let y = conv2d(x.as_tensor(), wt.as_tensor(), b.as_tensor(), true)?;
+                std::hint::black_box((y * &g)?.sum_all()?.backward()?);
+                Ok(())
+            })?;
+            rows.push(LayerTime { pass: "fwd+bwd", cin, cout, k, batch, w, h: w, seconds });
+        }
+        Ok(())
+    })?;
+    match args.format {
+        Format::Json => {
+            let items: Vec<serde_json::Value> = rows
+                .iter()
+                .map(|r| {
+                    serde_json::json!({
+                        "pass": r.pass, "cin": r.cin, "cout": r.cout, "k": r.k, "batch": r.batch,
+                        "width": r.w, "height": r.h, "seconds": r.seconds, "gflops": r.gflop() / r.seconds,
+                    })
+                })
+                .collect();
+            println!(
+                "{}",
+                serde_json::to_string_pretty(
+                    &serde_json::json!({ "model": name, "threads": args.threads, "layers": items })
+                )?
+            );
+        }
+        Format::Table | Format::Csv => {
+            println!("{name}: each convolution shape, {} threads, fastest of {}", args.threads, args.repeat.max(1));
+            println!("{:<8} {:>10} {:>4} {:>14} {:>10} {:>9}", "pass", "cin→cout", "k", "batch×W×H", "ms", "GFLOP/s");
+            for r in &rows {
+                let shape = format!("{}→{}", r.cin, r.cout);
+                let size = format!("{}×{}×{}", r.batch, r.w, r.h);
+                println!(
+                    "{:<8} {shape:>10} {:>4} {size:>14} {:>10.2} {:>9.1}",
+                    r.pass,
+                    r.k,
+                    r.seconds * 1e3,
+                    r.gflop() / r.seconds
+                );
+            }
+        }
+    }
+    Ok(())
 }

@@ -2,6 +2,7 @@
 
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
+use crate::kernel::ops::Ops;
 use crate::model::Model;
 use crate::train::curves;
 use crate::train::data::Dataset;
@@ -74,6 +75,10 @@ pub struct TrainArgs {
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
+    /// Run candle's stock conv2d and composed kernel application (several times slower)
+    /// instead of kpcn's kernels: only to measure the two against each other.
+    #[arg(long)]
+    pub stock_candle: bool,
     /// No progress bar.
     #[arg(short, long)]
     pub quiet: bool,
@@ -127,6 +132,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         importance: args.patches == Patches::Importance,
         checkpoint_every: args.checkpoint_every.max(1),
         validate_every: args.validate_every.max(1),
+        ops: if args.stock_candle { Ops::StockCandle } else { Ops::Kpcn },
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -196,11 +202,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     pool.install(|| -> anyhow::Result<()> {
         while !trainer.finished() && !stop.load(Ordering::SeqCst) {
             let mut row: LogRow = trainer.train_step()?;
-            if row.step % opts.validate_every == 0 || trainer.finished() {
-                if let Some(v) = trainer.validate()? {
-                    row.validation_relmse = Some(v.mean);
-                    row.validation_median_relmse = Some(v.median);
-                }
+            if (row.step.is_multiple_of(opts.validate_every) || trainer.finished())
+                && let Some(v) = trainer.validate()?
+            {
+                row.validation_relmse = Some(v.mean);
+                row.validation_median_relmse = Some(v.median);
             }
             let loss = if row.phase == 1 { row.loss_diffuse + row.loss_specular } else { row.loss_combined };
             let val = row.validation_median_relmse.map(|v| format!(", val relMSE median {v:.4}")).unwrap_or_default();
@@ -221,7 +227,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 row.patches_per_second,
                 row.validation_median_relmse.map(|v| v.to_string()).unwrap_or_default()
             )?;
-            if row.step % opts.checkpoint_every == 0 {
+            if row.step.is_multiple_of(opts.checkpoint_every) {
                 trainer.save(&checkpoint)?;
                 plot(&args.output, &bar);
             }

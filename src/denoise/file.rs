@@ -7,7 +7,7 @@
 //! The result equals denoising the whole frame at once (tested bit for bit).
 
 use super::{DenoiseError, Denoised, Denoiser, Progress};
-use crate::features::{self, Features};
+use crate::features;
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
 use crate::tile;
@@ -157,10 +157,7 @@ impl FileJob {
             let names = if opts.separate { Some(needed.as_slice()) } else { None };
             let fb = self.reader.read_band(names, c0, c1)?;
             let inputs = self.mapping.extract(&fb)?;
-            let f = match max_depth {
-                Some(m) => Features::with_max_depth(&inputs, m),
-                None => Features::new(&inputs),
-            };
+            let f = denoiser.features(&inputs, max_depth);
             drop(inputs);
             let step = |p: Progress| progress(Progress { done: done + p.done, total });
             let d = denoiser

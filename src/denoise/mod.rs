@@ -82,7 +82,7 @@ pub struct Denoiser {
     options: Options,
     pool: rayon::ThreadPool,
     /// The diffuse and specular weights as plain arrays, for a multi-scale model.
-    pyramid: Option<[crate::kernel::pyramid::Weights; 2]>,
+    pyramid: Option<[crate::model::pyramid::Weights; 2]>,
 }
 
 impl Denoiser {
@@ -95,7 +95,7 @@ impl Denoiser {
         let pool = b.build().map_err(|_| DenoiseError::Threads(options.threads.unwrap_or(0)))?;
         let pyramid = match model.arch.design {
             Design::MultiScale => {
-                let w = crate::kernel::pyramid::Weights::new;
+                let w = |b| crate::model::pyramid::Weights::new(&model.arch, b);
                 Some([w(&model.diffuse)?, w(&model.specular)?])
             }
             Design::Flat => None,
@@ -113,7 +113,9 @@ impl Denoiser {
         let arch = &self.model.arch;
         self.options
             .tile_size
-            .unwrap_or_else(|| tile::size_for_budget(arch, self.options.max_memory_mb << 20, width, height))
+            .unwrap_or_else(|| {
+                tile::size_for_budget(|t| arch.tile_bytes(t), self.options.max_memory_mb << 20, width, height)
+            })
             .next_multiple_of(arch.alignment())
     }
 
@@ -126,8 +128,16 @@ impl Denoiser {
         if inputs.width == 0 || inputs.height == 0 {
             return Err(DenoiseError::Empty);
         }
-        // Preprocessing is serial; the tiles run in the pool (`denoise_features`).
-        self.denoise_features(&Features::new(inputs), progress)
+        self.denoise_features(&self.features(inputs, None), progress)
+    }
+
+    /// Preprocesses `inputs` in this denoiser's threads; `max_depth` is the whole frame's
+    /// largest finite depth when `inputs` is a band of it.
+    pub fn features(&self, inputs: &KpcnInputs, max_depth: Option<f32>) -> Features {
+        self.pool.install(|| match max_depth {
+            Some(m) => Features::with_max_depth(inputs, m),
+            None => Features::new(inputs),
+        })
     }
 
     /// Denoises already preprocessed features (the trainer validates this way).
@@ -230,7 +240,7 @@ impl Denoiser {
             Branch::Diffuse => diffuse,
             Branch::Specular => specular,
         };
-        let out = crate::kernel::pyramid::forward(arch, weights, input, noisy, rw, rh);
+        let out = crate::model::pyramid::forward(arch, weights, input, noisy, rw, rh);
         Ok(out.map(|plane| {
             let mut v = Vec::with_capacity(t.w * t.h);
             for y in r..r + t.h {

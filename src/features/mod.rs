@@ -6,6 +6,7 @@
 //! diffuse `d̃ = diffuse / (albedo + ε)` or the log specular `s̃ = ln(1 + max(specular, 0))`.
 
 use crate::io::layout::KpcnInputs;
+use rayon::prelude::*;
 
 /// The paper's ε, used in albedo demodulation and recomposition.
 pub const EPSILON: f32 = 0.00316;
@@ -74,7 +75,7 @@ pub fn sanitize(v: f32) -> f32 {
 }
 
 fn clean(p: &[f32]) -> Vec<f32> {
-    p.iter().map(|&v| sanitize(v)).collect()
+    p.par_iter().map(|&v| sanitize(v)).collect()
 }
 
 fn clean3(p: &[Vec<f32>; 3]) -> [Vec<f32>; 3] {
@@ -83,7 +84,7 @@ fn clean3(p: &[Vec<f32>; 3]) -> [Vec<f32>; 3] {
 
 /// A variance: sanitised and never negative.
 fn clean_variance(p: &[f32]) -> Vec<f32> {
-    p.iter().map(|&v| sanitize(v).max(0.0)).collect()
+    p.par_iter().map(|&v| sanitize(v).max(0.0)).collect()
 }
 
 /// Backward differences `I[x] − I[x−1]` (0 in the first column) and `I[y] − I[y−1]`.
@@ -110,12 +111,12 @@ pub fn max_depth(depth: &[f32]) -> f32 {
 
 /// Demodulated diffuse `diffuse / (albedo + ε)`.
 pub fn demodulate(diffuse: &[f32], albedo: &[f32]) -> Vec<f32> {
-    diffuse.iter().zip(albedo).map(|(d, a)| d / (a + EPSILON)).collect()
+    diffuse.par_iter().zip(albedo).map(|(d, a)| d / (a + EPSILON)).collect()
 }
 
 /// Log specular `ln(1 + max(s, 0))`.
 pub fn log_specular(s: &[f32]) -> Vec<f32> {
-    s.iter().map(|&v| v.max(0.0).ln_1p()).collect()
+    s.par_iter().map(|&v| v.max(0.0).ln_1p()).collect()
 }
 
 impl Features {
@@ -130,21 +131,24 @@ impl Features {
         let (w, h) = (k.width, k.height);
         let n = w * h;
         // Reflectance is never negative; clamping also keeps albedo + ε away from 0.
-        let albedo = clean3(&k.albedo).map(|p| p.into_iter().map(|a| a.max(0.0)).collect::<Vec<f32>>());
+        let albedo = clean3(&k.albedo).map(|p| p.into_par_iter().map(|a| a.max(0.0)).collect::<Vec<f32>>());
         let diffuse = clean3(&k.diffuse);
         let specular = clean3(&k.specular);
 
         // Depth: non-finite → 0, ≥ 0, divided by the frame's largest finite depth.
         let depth_raw = clean(&k.depth);
         let scale = if max_depth > 0.0 { 1.0 / max_depth as f64 } else { 0.0 };
-        let depth = depth_raw.iter().map(|&d| (d.max(0.0) as f64 * scale) as f32).collect();
-        let depth_variance =
-            clean_variance(&k.depth_variance).iter().map(|&v| sanitize((v as f64 * scale * scale) as f32)).collect();
+        let depth = depth_raw.par_iter().map(|&d| (d.max(0.0) as f64 * scale) as f32).collect();
+        let depth_variance = clean_variance(&k.depth_variance)
+            .par_iter()
+            .map(|&v| sanitize((v as f64 * scale * scale) as f32))
+            .collect();
 
         let d_var = clean_variance(&k.diffuse_variance);
         let s_var = clean_variance(&k.specular_variance);
         // Variance divisions in f64, results sanitised back to the f32 range.
         let d_variance = (0..n)
+            .into_par_iter()
             .map(|i| {
                 let a = (albedo[0][i] + albedo[1][i] + albedo[2][i]) as f64 / 3.0 + EPSILON as f64;
                 sanitize((d_var[i] as f64 / (a * a)) as f32)
@@ -152,6 +156,7 @@ impl Features {
             .collect();
         // Delta method for ln(1 + s): σ² / (1 + s)², with the mean of (1 + s) over RGB.
         let s_variance = (0..n)
+            .into_par_iter()
             .map(|i| {
                 let m = 1.0 + (0..3).map(|c| specular[c][i].max(0.0) as f64).sum::<f64>() / 3.0;
                 sanitize((s_var[i] as f64 / (m * m)) as f32)
@@ -184,12 +189,32 @@ impl Features {
     /// Planes of region (`x0`, `y0`, `w`×`h`) — which may extend past the frame, reflected —
     /// as CHW, one plane per source.
     pub fn region(&self, planes: &[&[f32]], x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
-        let mut out = Vec::with_capacity(planes.len() * w * h);
-        for p in planes {
-            for y in 0..h {
-                let fy = reflect(y0 + y as isize, self.height);
-                out.extend((0..w).map(|x| p[fy * self.width + reflect(x0 + x as isize, self.width)]));
+        self.rows(planes.len(), x0, y0, w, h, |i, fy, xs, row| {
+            let src = &planes[i][fy * self.width..][..self.width];
+            for (v, &x) in row.iter_mut().zip(xs) {
+                *v = src[x];
             }
+        })
+    }
+
+    /// `planes` planes of the region (`x0`, `y0`, `w`×`h`), rows in parallel: each row
+    /// filled by `fill(plane, frame row, frame columns, row)` with the region's rows and
+    /// columns reflected into the frame.
+    fn rows(
+        &self,
+        planes: usize,
+        x0: isize,
+        y0: isize,
+        w: usize,
+        h: usize,
+        fill: impl Fn(usize, usize, &[usize], &mut [f32]) + Sync,
+    ) -> Vec<f32> {
+        let mut out = vec![0f32; planes * w * h];
+        if w > 0 && h > 0 {
+            let xs: Vec<usize> = (0..w).map(|x| reflect(x0 + x as isize, self.width)).collect();
+            out.par_chunks_mut(w)
+                .enumerate()
+                .for_each(|(i, row)| fill(i / h, reflect(y0 + (i % h) as isize, self.height), &xs, row));
         }
         out
     }
@@ -213,24 +238,16 @@ impl Features {
             Branch::Diffuse => &self.d_variance,
             Branch::Specular => &self.s_variance,
         };
-        let mut out = self.region(&guides[..3], x0, y0, w, h);
-        for along_x in [true, false] {
-            for g in guides {
-                for y in 0..h {
-                    let fy = reflect(y0 + y as isize, self.height);
-                    out.extend(
-                        (0..w).map(|x| grad_at(g, self.width, reflect(x0 + x as isize, self.width), fy, along_x)),
-                    );
-                }
+        let variances: [&[f32]; 4] = [var, &self.normal_variance, &self.albedo_variance, &self.depth_variance];
+        let fw = self.width;
+        let out = self.rows(INPUT_CHANNELS, x0, y0, w, h, |i, fy, xs, row| match i {
+            0..3 => row.iter_mut().zip(xs).for_each(|(v, &x)| *v = guides[i][fy * fw + x]),
+            3..23 => {
+                let (g, along_x) = (guides[(i - 3) % 10], i < 13);
+                row.iter_mut().zip(xs).for_each(|(v, &x)| *v = grad_at(g, fw, x, fy, along_x));
             }
-        }
-        out.extend(self.region(
-            &[var, &self.normal_variance, &self.albedo_variance, &self.depth_variance],
-            x0,
-            y0,
-            w,
-            h,
-        ));
+            _ => row.iter_mut().zip(xs).for_each(|(v, &x)| *v = variances[i - 23][fy * fw + x]),
+        });
         debug_assert_eq!(out.len(), INPUT_CHANNELS * w * h);
         out
     }

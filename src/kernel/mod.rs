@@ -5,11 +5,14 @@
 
 use rayon::prelude::*;
 
+pub mod buffers;
 pub mod conv;
-pub mod pyramid;
+pub mod ops;
+pub mod planes;
+mod simd;
 
 /// Logits are clamped to this magnitude (NaN → −it) so the softmax stays finite.
-const LOGIT_LIMIT: f32 = 1e30;
+pub(crate) const LOGIT_LIMIT: f32 = 1e30;
 
 fn clamp_logit(l: f32) -> f32 {
     if l.is_nan() { -LOGIT_LIMIT } else { l.clamp(-LOGIT_LIMIT, LOGIT_LIMIT) }
@@ -26,10 +29,17 @@ pub fn apply(logits: &[f32], noisy: &[Vec<f32>; 3], k: usize, w: usize, h: usize
     let plane = w * h;
     assert_eq!(logits.len(), k * k * plane, "logits are k² × h × w");
     assert!(noisy.iter().all(|p| p.len() == pw * (h + 2 * r)), "noisy planes are (h + 2r) × (w + 2r)");
-    let mut out = [vec![0f32; plane], vec![0f32; plane], vec![0f32; plane]];
+    let mut out = [buffers::zeroed(plane), buffers::zeroed(plane), buffers::zeroed(plane)];
     let [o0, o1, o2] = &mut out;
     o0.par_chunks_mut(w).zip(o1.par_chunks_mut(w)).zip(o2.par_chunks_mut(w)).enumerate().for_each(
         |(y, ((r0, r1), r2))| {
+            #[cfg(target_arch = "x86_64")]
+            if simd::avx512() {
+                // SAFETY: AVX-512F is available (checked); the slices have the sizes
+                // asserted above.
+                unsafe { simd::apply_row(logits, noisy, k, w, h, y, [r0, r1, r2]) };
+                return;
+            }
             // Row-wise passes keep every access contiguous.
             let mut max = vec![f32::NEG_INFINITY; w];
             for n in 0..k * k {
@@ -62,6 +72,55 @@ pub fn apply(logits: &[f32], noisy: &[Vec<f32>; 3], k: usize, w: usize, h: usize
             }
         },
     );
+    out
+}
+
+/// The gradient of [`apply`] in the logits, given the output's gradient `grad` (three
+/// `h × w` planes): with `p` the softmax weights and `o` the output, `∂/∂l_n =
+/// p_n·Σ_c grad_c·(noisy_c,n − o_c)`. Logits clamped by the forward pass get the gradient
+/// of their clamped value.
+pub fn apply_backward(
+    logits: &[f32],
+    noisy: &[Vec<f32>; 3],
+    grad: [&[f32]; 3],
+    k: usize,
+    w: usize,
+    h: usize,
+) -> Vec<f32> {
+    let r = (k - 1) / 2;
+    let (pw, plane, k2) = (w + 2 * r, w * h, k * k);
+    assert_eq!(logits.len(), k2 * plane, "logits are k² × h × w");
+    let mut out = vec![0f32; k2 * plane];
+    // Rows are independent; each task writes its row of every logit plane.
+    let rows: Vec<Vec<f32>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let mut d = vec![0f32; k2 * w];
+            let mut e = vec![0f32; k2];
+            for x in 0..w {
+                let l = |n: usize| clamp_logit(logits[n * plane + y * w + x]);
+                let max = (0..k2).map(l).fold(f32::NEG_INFINITY, f32::max);
+                let mut sum = 0f32;
+                for (n, en) in e.iter_mut().enumerate() {
+                    *en = (l(n) - max).exp();
+                    sum += *en;
+                }
+                let v = |c: usize, n: usize| noisy[c][(y + n / k) * pw + x + n % k];
+                let o: [f32; 3] = std::array::from_fn(|c| (0..k2).map(|n| e[n] * v(c, n)).sum::<f32>() / sum);
+                let g: [f32; 3] = std::array::from_fn(|c| grad[c][y * w + x]);
+                for (n, &en) in e.iter().enumerate() {
+                    let dot: f32 = (0..3).map(|c| g[c] * (v(c, n) - o[c])).sum();
+                    d[n * w + x] = en / sum * dot;
+                }
+            }
+            d
+        })
+        .collect();
+    for (y, d) in rows.iter().enumerate() {
+        for n in 0..k2 {
+            out[n * plane + y * w..][..w].copy_from_slice(&d[n * w..][..w]);
+        }
+    }
     out
 }
 

@@ -11,6 +11,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 pub mod multiscale;
+pub mod pyramid;
 
 /// Model file format version written in the metadata.
 pub const FORMAT_VERSION: &str = "1";
@@ -156,6 +157,21 @@ impl Architecture {
         }
     }
 
+    /// Estimated peak bytes to evaluate one branch on a `t`×`t` tile: the input with its
+    /// halo, the convolution's unfolded input (im2col), two activations, the logits and
+    /// the noisy colour region (multi-scale: [`pyramid::bytes_per_pixel`] of the region).
+    pub fn tile_bytes(&self, t: usize) -> usize {
+        let p = (t + 2 * self.feature_radius()).pow(2);
+        if self.design == Design::MultiScale {
+            return p * pyramid::bytes_per_pixel(self);
+        }
+        let widest = self.channels.max(INPUT_CHANNELS);
+        let im2col = widest * self.conv_size * self.conv_size * p;
+        let logits = self.outputs() * t * t;
+        let noisy = 3 * (t + 2 * self.kernel_radius()).pow(2);
+        4 * (INPUT_CHANNELS * p + im2col + 2 * widest * p + 2 * logits + noisy)
+    }
+
     /// (out, in, size) of every convolution, in the model file's order.
     pub fn layer_shapes(&self) -> Vec<(usize, usize, usize)> {
         match self.design {
@@ -184,7 +200,11 @@ impl Architecture {
 
     fn validate(&self, origin: &str) -> Result<(), ModelError> {
         let bad = |what: String| Err(ModelError::Format { origin: origin.into(), what });
-        if self.layers == 0 || self.channels == 0 || self.conv_size % 2 == 0 || self.kernel_size % 2 == 0 {
+        if self.layers == 0
+            || self.channels == 0
+            || self.conv_size.is_multiple_of(2)
+            || self.kernel_size.is_multiple_of(2)
+        {
             return bad(format!("impossible architecture {self:?}"));
         }
         if self.design == Design::MultiScale && (self.kind != Kind::Kpcn || self.layers > 6) {
@@ -420,6 +440,18 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn budgets_pick_smaller_tiles_for_bigger_networks() {
+        use crate::tile::size_for_budget;
+        let budget = 256 << 20;
+        let (paper, small) = (Architecture::paper(Kind::Kpcn), Architecture::small(Kind::Kpcn));
+        let tp = size_for_budget(|t| paper.tile_bytes(t), budget, 1920, 1080);
+        let ts = size_for_budget(|t| small.tile_bytes(t), budget, 1920, 1080);
+        assert!(tp < ts, "{tp} vs {ts}");
+        assert!(paper.tile_bytes(tp) <= budget);
+        assert_eq!(size_for_budget(|t| small.tile_bytes(t), usize::MAX, 40, 20), 48);
+    }
 
     #[test]
     fn the_network_matches_a_hand_computed_convolution() {

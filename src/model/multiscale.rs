@@ -23,7 +23,8 @@
 
 use super::{Architecture, BranchWeights, ModelError};
 use crate::features::INPUT_CHANNELS;
-use crate::kernel::conv::Planes;
+use crate::kernel::ops::Ops;
+use crate::kernel::planes::Planes;
 use candle_core::Tensor;
 
 /// Blend logits are clamped to this magnitude before the sigmoid, so `exp` and its
@@ -64,23 +65,24 @@ pub fn layer_shapes(a: &Architecture) -> Vec<(usize, usize, usize)> {
     v
 }
 
+/// The scale (0 = full resolution, `s` = `2^−s`) layer `i` of [`layer_shapes`] runs at.
+pub fn layer_scale(a: &Architecture, i: usize) -> usize {
+    let (dec, head) = layer_offsets(a);
+    if i < dec {
+        i / 2
+    } else if i < head {
+        a.layers - 1 - (i - dec)
+    } else {
+        a.layers - 1 - (i - head)
+    }
+}
+
 /// Multiply-adds ×2 per full-resolution pixel of one branch.
 pub fn flops_per_pixel(a: &Architecture) -> f64 {
-    let shapes = layer_shapes(a);
-    let (dec, head) = layer_offsets(a);
-    let scale_of = |i: usize| -> usize {
-        if i < dec {
-            i / 2
-        } else if i < head {
-            a.layers - 1 - (i - dec)
-        } else {
-            a.layers - 1 - (i - head)
-        }
-    };
-    let net: f64 = shapes
+    let net: f64 = layer_shapes(a)
         .iter()
         .enumerate()
-        .map(|(i, &(o, n, k))| 2.0 * (o * n * k * k) as f64 / 4f64.powi(scale_of(i) as i32))
+        .map(|(i, &(o, n, k))| 2.0 * (o * n * k * k) as f64 / 4f64.powi(layer_scale(a, i) as i32))
         .sum();
     let kernels: f64 =
         (0..a.layers).map(|s| 2.0 * 3.0 * (a.kernel_size * a.kernel_size) as f64 / 4f64.powi(s as i32)).sum();
@@ -177,17 +179,21 @@ pub fn sigmoid(x: &Tensor) -> Result<Tensor, ModelError> {
 
 /// Evaluates a branch on a region: features `[B, 27, S, S']` and the noisy colour `c̃`
 /// `[B, 3, S, S']` of the same pixels (sides multiples of [`Architecture::alignment`]);
-/// returns the denoised `c̃` `[B, 3, S, S']`. Convolutions pad with zeros and kernels
+/// returns the denoised `c̃` `[B, 3, S, S']`. `ops` picks the implementation. Convolutions pad with zeros and kernels
 /// replicate the edge, so only pixels at least [`receptive_radius`] inside the region
 /// equal the whole frame's.
-pub fn forward(a: &Architecture, w: &BranchWeights, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
+pub fn forward(
+    a: &Architecture,
+    w: &BranchWeights,
+    input: &Tensor,
+    noisy: &Tensor,
+    ops: Ops,
+) -> Result<Tensor, ModelError> {
     let l = a.layers;
     let (dec, head) = layer_offsets(a);
     let conv = |x: &Tensor, i: usize, relu: bool| -> Result<Tensor, ModelError> {
         let (wt, b) = &w.layers[i];
-        let (o, _, k, _) = wt.dims4()?;
-        let y = x.conv2d(wt, (k - 1) / 2, 1, 1, 1)?.broadcast_add(&b.reshape((1, o, 1, 1))?)?;
-        Ok(if relu { y.relu()? } else { y })
+        Ok(ops.conv2d(x, wt, b, relu)?)
     };
     let mut enc: Vec<Tensor> = Vec::with_capacity(l + 1);
     for s in 0..=l {
@@ -220,7 +226,7 @@ pub fn forward(a: &Architecture, w: &BranchWeights, input: &Tensor, noisy: &Tens
         let h = conv(&x, head + j, false)?;
         let logits = h.narrow(1, 0, k * k)?;
         let padded = colour[s].pad_with_same(2, r, r)?.pad_with_same(3, r, r)?;
-        let o = crate::train::apply_kernels(&logits, &padded, k)?;
+        let o = ops.apply_kernels(&logits, &padded, k)?;
         out = Some(match out {
             None => o,
             Some(coarse) => {

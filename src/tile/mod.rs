@@ -2,8 +2,6 @@
 //! here: `features` extracts each tile's input with its halo (reflected at the frame
 //! border), so a tile's result equals the same region of the untiled result.
 
-use crate::model::Architecture;
-
 /// A rectangle of output pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Tile {
@@ -30,27 +28,12 @@ pub fn plan(width: usize, height: usize, size: usize) -> Vec<Tile> {
         .collect()
 }
 
-/// Estimated peak bytes to evaluate one branch on a `t`×`t` tile: the input with its halo,
-/// the convolution's unfolded input (im2col), two activations, the logits and the noisy
-/// colour region.
-pub fn tile_bytes(arch: &Architecture, t: usize) -> usize {
-    let p = (t + 2 * arch.feature_radius()).pow(2);
-    if arch.design == crate::model::Design::MultiScale {
-        return p * crate::kernel::pyramid::bytes_per_pixel(arch);
-    }
-    let widest = arch.channels.max(crate::features::INPUT_CHANNELS);
-    let im2col = widest * arch.conv_size * arch.conv_size * p;
-    let logits = arch.outputs() * t * t;
-    let noisy = 3 * (t + 2 * arch.kernel_radius()).pow(2);
-    4 * (crate::features::INPUT_CHANNELS * p + im2col + 2 * widest * p + 2 * logits + noisy)
-}
-
 /// The largest tile side (a multiple of 16, at least 16, at most the frame's larger side)
-/// whose working memory fits `budget` bytes.
-pub fn size_for_budget(arch: &Architecture, budget: usize, width: usize, height: usize) -> usize {
+/// whose working memory, `tile_bytes(side)`, fits `budget` bytes.
+pub fn size_for_budget(tile_bytes: impl Fn(usize) -> usize, budget: usize, width: usize, height: usize) -> usize {
     let cap = width.max(height).max(16).next_multiple_of(16);
     let mut t = 16;
-    while t + 16 <= cap && tile_bytes(arch, t + 16) <= budget {
+    while t + 16 <= cap && tile_bytes(t + 16) <= budget {
         t += 16;
     }
     t
@@ -59,7 +42,6 @@ pub fn size_for_budget(arch: &Architecture, budget: usize, width: usize, height:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::Kind;
 
     #[test]
     fn tiles_cover_the_frame_exactly_once() {
@@ -77,12 +59,12 @@ mod tests {
     }
 
     #[test]
-    fn budgets_pick_smaller_tiles_for_bigger_networks() {
-        let budget = 256 << 20;
-        let paper = size_for_budget(&Architecture::paper(Kind::Kpcn), budget, 1920, 1080);
-        let small = size_for_budget(&Architecture::small(Kind::Kpcn), budget, 1920, 1080);
-        assert!(paper < small, "{paper} vs {small}");
-        assert!(tile_bytes(&Architecture::paper(Kind::Kpcn), paper) <= budget);
-        assert_eq!(size_for_budget(&Architecture::small(Kind::Kpcn), usize::MAX, 40, 20), 48);
+    fn the_budget_picks_the_largest_side_that_fits() {
+        // A quadratic cost: 4 bytes per pixel of the tile plus a 16-pixel halo.
+        let bytes = |t: usize| 4 * (t + 32) * (t + 32);
+        let t = size_for_budget(bytes, 1 << 20, 1920, 1080);
+        assert!(t % 16 == 0 && bytes(t) <= 1 << 20 && bytes(t + 16) > 1 << 20, "{t}");
+        assert_eq!(size_for_budget(bytes, usize::MAX, 40, 20), 48);
+        assert_eq!(size_for_budget(bytes, 0, 40, 20), 16);
     }
 }

@@ -2,14 +2,16 @@
 //! transformed domain (phase 1), then both branches on the recomposed colour (phase 2),
 //! Adam, checkpoints that resume exactly.
 //!
-//! The kernel application is composed from candle ops here (`apply_kernels`), so candle's
-//! autograd differentiates it; `kernel::apply` is the fast inference version.
+//! Convolutions and kernel application run on our own kernels with explicit backward
+//! passes ([`crate::kernel::ops`]), the same forward code as inference; `--stock-candle`
+//! runs candle's own ops instead, for comparison.
 
 pub mod cache;
 pub mod curves;
 pub mod data;
 
 use crate::features::EPSILON;
+use crate::kernel::ops::Ops;
 #[cfg(doc)]
 use crate::model::Architecture;
 use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
@@ -89,28 +91,6 @@ impl Adam {
     }
 }
 
-/// Softmax over `k²` logits `[B, k², h, w]` (max subtracted) applied to the noisy colour
-/// `[B, 3, h + 2r, w + 2r]`: `[B, 3, h, w]`. Composed ops, so autograd differentiates it.
-pub fn apply_kernels(logits: &Tensor, noisy: &Tensor, k: usize) -> Result<Tensor, ModelError> {
-    let (_, _, h, w) = logits.dims4()?;
-    let max = logits.max_keepdim(1)?.detach();
-    let e = logits.broadcast_sub(&max)?.exp()?;
-    let weights = e.broadcast_div(&e.sum_keepdim(1)?)?;
-    let mut acc: Option<Tensor> = None;
-    for ky in 0..k {
-        for kx in 0..k {
-            let wn = weights.narrow(1, ky * k + kx, 1)?;
-            let patch = noisy.narrow(2, ky, h)?.narrow(3, kx, w)?;
-            let term = patch.broadcast_mul(&wn)?;
-            acc = Some(match acc {
-                None => term,
-                Some(a) => (a + term)?,
-            });
-        }
-    }
-    Ok(acc.expect("k ≥ 1"))
-}
-
 /// Trainable copies of a model's weights.
 pub struct TrainableModel {
     /// Architecture and description of the model being trained.
@@ -119,6 +99,8 @@ pub struct TrainableModel {
     pub diffuse: Vec<(Var, Var)>,
     /// Specular branch.
     pub specular: Vec<(Var, Var)>,
+    /// The implementation the graph runs (ours unless measuring against candle's).
+    pub ops: Ops,
 }
 
 fn vars(b: &BranchWeights) -> Result<Vec<(Var, Var)>, ModelError> {
@@ -132,7 +114,12 @@ fn weights(v: &[(Var, Var)]) -> BranchWeights {
 impl TrainableModel {
     /// Makes a model's weights trainable.
     pub fn new(m: &Model) -> Result<TrainableModel, ModelError> {
-        Ok(TrainableModel { base: m.clone(), diffuse: vars(&m.diffuse)?, specular: vars(&m.specular)? })
+        Ok(TrainableModel {
+            base: m.clone(),
+            diffuse: vars(&m.diffuse)?,
+            specular: vars(&m.specular)?,
+            ops: Ops::default(),
+        })
     }
 
     /// All variables of a branch (or both), flattened.
@@ -175,12 +162,12 @@ impl TrainableModel {
         if arch.design == Design::MultiScale {
             let (m, _) = arch.train_margins();
             let (_, _, h, wd) = input.dims4()?;
-            let out = multiscale::forward(arch, &w, input, noisy)?;
+            let out = multiscale::forward(arch, &w, input, noisy, self.ops)?;
             return Ok(out.narrow(2, m, h - 2 * m)?.narrow(3, m, wd - 2 * m)?);
         }
         let out = w.forward(input)?;
         match arch.kind {
-            Kind::Kpcn => apply_kernels(&out, noisy, arch.kernel_size),
+            Kind::Kpcn => Ok(self.ops.apply_kernels(&out, noisy, arch.kernel_size)?),
             Kind::Dpcn => Ok(out),
         }
     }
@@ -211,67 +198,6 @@ pub fn tensor(data: Vec<f32>, shape: (usize, usize, usize, usize)) -> Result<Ten
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel;
-    use crate::rng::SplitMix64;
-
-    #[test]
-    fn composed_kernels_match_the_fast_inference_kernels() {
-        let (k, h, w) = (3, 4, 5);
-        let logits = SplitMix64(1).centred(k * k * h * w).iter().map(|v| v * 6.0).collect::<Vec<_>>();
-        let noisy: Vec<f32> = SplitMix64(2).centred(3 * (h + 2) * (w + 2));
-        let a = apply_kernels(
-            &tensor(logits.clone(), (1, k * k, h, w)).unwrap(),
-            &tensor(noisy.clone(), (1, 3, h + 2, w + 2)).unwrap(),
-            k,
-        )
-        .unwrap()
-        .flatten_all()
-        .unwrap()
-        .to_vec1::<f32>()
-        .unwrap();
-        let m = (h + 2) * (w + 2);
-        let planes = [0, 1, 2].map(|c| noisy[c * m..(c + 1) * m].to_vec());
-        let b = kernel::apply(&logits, &planes, k, w, h);
-        for c in 0..3 {
-            for i in 0..h * w {
-                assert!((a[c * h * w + i] - b[c][i]).abs() < 1e-5);
-            }
-        }
-    }
-
-    #[test]
-    fn kernel_gradients_match_finite_differences() {
-        let (k, h, w) = (3, 2, 3);
-        let logits = Var::from_vec(SplitMix64(3).centred(k * k * h * w), (1, k * k, h, w), &Device::Cpu).unwrap();
-        let noisy =
-            Var::from_vec(SplitMix64(4).centred(3 * (h + 2) * (w + 2)), (1, 3, h + 2, w + 2), &Device::Cpu).unwrap();
-        let probe = tensor(SplitMix64(5).centred(3 * h * w), (1, 3, h, w)).unwrap();
-        let loss = |l: &Tensor, n: &Tensor| -> f64 {
-            let out = apply_kernels(l, n, k).unwrap();
-            (out * &probe).unwrap().sum_all().unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
-        };
-        let out = apply_kernels(logits.as_tensor(), noisy.as_tensor(), k).unwrap();
-        let grads = (out * &probe).unwrap().sum_all().unwrap().backward().unwrap();
-        for var in [&logits, &noisy] {
-            let g = grads.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            for i in (0..base.len()).step_by(5) {
-                let eps = 1e-2f32;
-                let shifted = |d: f32| {
-                    let mut v = base.clone();
-                    v[i] += d;
-                    Tensor::from_vec(v, var.as_tensor().shape(), &Device::Cpu).unwrap()
-                };
-                let (lp, ln) = if std::ptr::eq(var, &logits) {
-                    (loss(&shifted(eps), noisy.as_tensor()), loss(&shifted(-eps), noisy.as_tensor()))
-                } else {
-                    (loss(logits.as_tensor(), &shifted(eps)), loss(logits.as_tensor(), &shifted(-eps)))
-                };
-                let fd = (lp - ln) / (2.0 * eps as f64);
-                assert!((fd - g[i] as f64).abs() < 2e-3, "index {i}: finite difference {fd}, autograd {}", g[i]);
-            }
-        }
-    }
 
     #[test]
     fn optimiser_state_keeps_no_autograd_graph() {
@@ -323,6 +249,8 @@ pub struct TrainOptions {
     pub checkpoint_every: u64,
     /// Steps between validations.
     pub validate_every: u64,
+    /// The implementation the training graph runs (candle's stock ops only to compare).
+    pub ops: Ops,
 }
 
 /// One line of the training log.
@@ -407,7 +335,7 @@ impl<'a> Trainer<'a> {
         }
         let (margin, _) = model.arch.train_margins();
         let align = model.arch.alignment();
-        if (opts.patch + 2 * margin) % align != 0 {
+        if !(opts.patch + 2 * margin).is_multiple_of(align) {
             return Err(TrainError::Options(format!(
                 "--patch {} does not suit this network: patch + {} context pixels must be a multiple of {align} (try --patch {})",
                 opts.patch,
@@ -415,7 +343,8 @@ impl<'a> Trainer<'a> {
                 (opts.patch + 2 * margin).next_multiple_of(align) - 2 * margin
             )));
         }
-        let model = TrainableModel::new(model)?;
+        let mut model = TrainableModel::new(model)?;
+        model.ops = opts.ops;
         Ok(Trainer {
             adam_d: Adam::new(&model.vars(true, false), opts.lr)?,
             adam_s: Adam::new(&model.vars(false, true), opts.lr)?,

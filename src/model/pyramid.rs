@@ -1,10 +1,13 @@
-//! Inference of the multi-scale network ([`crate::model::multiscale`], which defines it
-//! and evaluates it with candle for training) on one region, with our own kernels:
-//! [`super::conv`] convolutions and [`super::apply`] kernel application at every scale.
+//! Inference of the multi-scale network ([`super::multiscale`], which defines it and
+//! evaluates it as a candle graph for training) on one region, on plain arrays with the
+//! same kernels: [`crate::kernel::conv`] convolutions and [`crate::kernel::apply`] kernel
+//! application at every scale.
 
-use super::conv::{Planes, conv};
+use super::{Architecture, BranchWeights, ModelError, multiscale};
 use crate::features::INPUT_CHANNELS;
-use crate::model::{Architecture, BranchWeights, ModelError, multiscale};
+use crate::kernel::conv::{ConvLayer, conv};
+use crate::kernel::planes::Planes;
+use rayon::prelude::*;
 
 /// Working bytes per region pixel, for tile budgets: the input, the full-resolution
 /// activations, the head's logits, the colour pyramid and the coarser scales.
@@ -13,23 +16,43 @@ pub fn bytes_per_pixel(arch: &Architecture) -> usize {
     4 * (2 * INPUT_CHANNELS + arch.channels + 2 * (k2 + 1) + 12)
 }
 
-/// One branch's convolutions as plain arrays, converted from the model's tensors once
-/// per [`crate::denoise::Denoiser`] rather than once per tile.
+/// One branch's convolutions packed for [`conv`], converted from the model's tensors
+/// once per [`crate::denoise::Denoiser`] rather than once per tile.
 #[derive(Debug, Clone)]
 pub struct Weights {
-    /// Per layer: the `[out, in, k, k]` weights, the bias and `k`.
-    layers: Vec<(Vec<f32>, Vec<f32>, usize)>,
+    /// Every layer, in the model file's order.
+    layers: Vec<ConvLayer>,
+    /// The full-resolution head split in two (see [`forward`]): the part applied to the
+    /// upsampled coarse features (without bias) and the part applied to `E_0`.
+    head0: [ConvLayer; 2],
 }
 
 impl Weights {
-    /// Copies a branch's tensors.
-    pub fn new(weights: &BranchWeights) -> Result<Weights, ModelError> {
-        let layers = weights
-            .layers
-            .iter()
-            .map(|(wt, b)| Ok((wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?, wt.dims4()?.3)))
-            .collect::<Result<_, candle_core::Error>>()?;
-        Ok(Weights { layers })
+    /// Copies and packs a branch's tensors.
+    pub fn new(arch: &Architecture, weights: &BranchWeights) -> Result<Weights, ModelError> {
+        let mut layers = Vec::with_capacity(weights.layers.len());
+        let mut last = None;
+        for (wt, b) in &weights.layers {
+            let (_, cin, k, _) = wt.dims4()?;
+            let (wt, b) = (wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?);
+            layers.push(ConvLayer::new(&wt, &b, cin, k));
+            last = Some((wt, b, cin));
+        }
+        let (wt, b, cin) = last.ok_or_else(|| ModelError::Format {
+            origin: "model".into(),
+            what: "a multi-scale branch without layers".into(),
+        })?;
+        // A 1×1 layer commutes with nearest upsampling: the upsampled half of its input is
+        // convolved at half resolution, four times cheaper.
+        let c1 = multiscale::width(arch, 1);
+        let split = |from: usize, to: usize| -> Vec<f32> {
+            (0..b.len()).flat_map(|r| wt[r * cin + from..r * cin + to].to_vec()).collect()
+        };
+        let head0 = [
+            ConvLayer::new(&split(0, c1), &vec![0.0; b.len()], c1, 1),
+            ConvLayer::new(&split(c1, cin), &b, cin - c1, 1),
+        ];
+        Ok(Weights { layers, head0 })
     }
 }
 
@@ -46,7 +69,7 @@ pub fn forward(
     let l = arch.layers;
     let (dec, head) = multiscale::layer_offsets(arch);
     let layers = &weights.layers;
-    let layer = |x: &Planes, i: usize, relu: bool| conv(x, &layers[i].0, &layers[i].1, layers[i].2, relu);
+    let layer = |x: &Planes, i: usize, relu: bool| conv(x, &layers[i], relu);
 
     let mut enc: Vec<Planes> = Vec::with_capacity(l + 1);
     let input = Planes::from_vec(INPUT_CHANNELS, w, h, input);
@@ -67,23 +90,13 @@ pub fn forward(
     let (k, k2) = (arch.kernel_size, arch.kernel_size * arch.kernel_size);
     let mut out: Option<Planes> = None;
     for (j, s) in (0..l).rev().enumerate() {
-        let (wt, b, _) = &layers[head + j];
         let logits = if s == 0 {
-            // A 1×1 layer commutes with nearest upsampling: the upsampled half of its
-            // input is convolved at half resolution, four times cheaper.
-            let (o, c1) = (b.len(), multiscale::width(arch, 1));
-            let cin = c1 + multiscale::width(arch, 0);
-            let split = |from: usize, to: usize| -> Vec<f32> {
-                (0..o).flat_map(|r| wt[r * cin + from..r * cin + to].to_vec()).collect()
-            };
-            let coarse = conv(feat(1), &split(0, c1), &vec![0.0; o], 1, false).up_nearest();
-            let mut fine = conv(&enc[0], &split(c1, cin), b, 1, false);
-            for (f, c) in fine.data.iter_mut().zip(&coarse.data) {
-                *f += c;
-            }
+            let coarse = conv(feat(1), &weights.head0[0], false);
+            let mut fine = conv(&enc[0], &weights.head0[1], false);
+            fine.add_up_nearest(&coarse);
             fine
         } else {
-            conv(feat(s), wt, b, 1, false)
+            conv(feat(s), &layers[head + j], false)
         };
         let o = apply_replicated(&logits, &colour[s], k);
         out = Some(match out {
@@ -93,16 +106,15 @@ pub fn forward(
                 let n = o.w * o.h;
                 let alpha: Vec<f32> = logits
                     .plane(k2)
-                    .iter()
+                    .par_iter()
                     .map(|&v| 1.0 / (1.0 + (-v.clamp(-multiscale::BLEND_LIMIT, multiscale::BLEND_LIMIT)).exp()))
                     .collect();
                 let mut blended = o;
-                for c in 0..3 {
-                    let (dst, src) = (&mut blended.data[c * n..(c + 1) * n], up.plane(c));
+                blended.data.par_chunks_mut(n).zip(up.data.par_chunks(n)).for_each(|(dst, src)| {
                     for ((d, &u), &a) in dst.iter_mut().zip(src).zip(&alpha) {
                         *d = *d * (1.0 - a) + u * a;
                     }
-                }
+                });
                 blended
             }
         });
@@ -117,17 +129,23 @@ pub fn forward(
 fn apply_replicated(logits: &Planes, colour: &Planes, k: usize) -> Planes {
     let (w, h, r) = (colour.w, colour.h, (k - 1) / 2);
     let (pw, ph) = (w + 2 * r, h + 2 * r);
-    let padded: [Vec<f32>; 3] = std::array::from_fn(|c| {
-        let src = colour.plane(c);
-        let mut p = Vec::with_capacity(pw * ph);
-        for y in 0..ph {
-            let row = &src[(y.saturating_sub(r)).min(h - 1) * w..][..w];
-            p.extend((0..pw).map(|x| row[x.saturating_sub(r).min(w - 1)]));
-        }
-        p
-    });
+    let padded: Vec<Vec<f32>> = (0..3)
+        .into_par_iter()
+        .map(|c| {
+            let src = colour.plane(c);
+            let mut p = vec![0f32; pw * ph];
+            p.par_chunks_mut(pw).enumerate().for_each(|(y, dst)| {
+                let row = &src[(y.saturating_sub(r)).min(h - 1) * w..][..w];
+                for (x, d) in dst.iter_mut().enumerate() {
+                    *d = row[x.saturating_sub(r).min(w - 1)];
+                }
+            });
+            p
+        })
+        .collect();
+    let padded: [Vec<f32>; 3] = padded.try_into().expect("three planes");
     let k2 = k * k;
-    let out = super::apply(&logits.data[..k2 * w * h], &padded, k, w, h);
+    let out = crate::kernel::apply(&logits.data[..k2 * w * h], &padded, k, w, h);
     Planes::from_vec(3, w, h, out.concat())
 }
 
@@ -148,8 +166,8 @@ mod tests {
         let x = Tensor::from_vec(input.clone(), (1, INPUT_CHANNELS, h, w), &Device::Cpu).unwrap();
         let c = Tensor::from_vec(noisy.clone(), (1, 3, h, w), &Device::Cpu).unwrap();
         for (branch, weights) in [("diffuse", &m.diffuse), ("specular", &m.specular)] {
-            let ours = forward(&arch, &Weights::new(weights).unwrap(), input.clone(), noisy.clone(), w, h);
-            let theirs = multiscale::forward(&arch, weights, &x, &c).unwrap();
+            let ours = forward(&arch, &Weights::new(&arch, weights).unwrap(), input.clone(), noisy.clone(), w, h);
+            let theirs = multiscale::forward(&arch, weights, &x, &c, crate::kernel::ops::Ops::StockCandle).unwrap();
             let theirs = theirs.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             for c in 0..3 {
                 for i in 0..w * h {

@@ -1,0 +1,178 @@
+//! Channel-major (CHW) image planes and the resampling steps of the multi-scale network:
+//! 2×2 box pooling, nearest and bilinear 2× upsampling, and the firefly clamp, each
+//! computed row by row in parallel.
+
+use super::buffers::{self, zeroed};
+use rayon::prelude::*;
+
+/// Channel-major planes: `c` planes of `w × h`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Planes {
+    /// Channels.
+    pub c: usize,
+    /// Width.
+    pub w: usize,
+    /// Height.
+    pub h: usize,
+    /// `c × h × w` values.
+    pub data: Vec<f32>,
+}
+
+impl Drop for Planes {
+    fn drop(&mut self) {
+        buffers::recycle(std::mem::take(&mut self.data));
+    }
+}
+
+impl Planes {
+    /// Zeros.
+    pub fn zeros(c: usize, w: usize, h: usize) -> Planes {
+        Planes { c, w, h, data: zeroed(c * w * h) }
+    }
+
+    /// Wraps CHW data.
+    pub fn from_vec(c: usize, w: usize, h: usize, data: Vec<f32>) -> Planes {
+        assert_eq!(data.len(), c * w * h, "CHW data of {c}×{h}×{w}");
+        Planes { c, w, h, data }
+    }
+
+    /// Plane `i`.
+    pub fn plane(&self, i: usize) -> &[f32] {
+        &self.data[i * self.w * self.h..(i + 1) * self.w * self.h]
+    }
+
+    /// `self` then `other` (same size), channel-wise.
+    pub fn concat(mut self, other: &Planes) -> Planes {
+        assert_eq!((self.w, self.h), (other.w, other.h), "concatenated planes differ in size");
+        self.data.extend_from_slice(&other.data);
+        self.c += other.c;
+        self
+    }
+
+    /// Planes of `w × h` whose rows `fill(channel, y, row)` writes, rows in parallel.
+    fn by_rows(c: usize, w: usize, h: usize, fill: impl Fn(usize, usize, &mut [f32]) + Sync) -> Planes {
+        let mut out = Planes::zeros(c, w, h);
+        if w > 0 && h > 0 {
+            out.data.par_chunks_mut(w).enumerate().for_each(|(i, row)| fill(i / h, i % h, row));
+        }
+        out
+    }
+
+    /// Row `y` of plane `c`.
+    fn row(&self, c: usize, y: usize) -> &[f32] {
+        &self.data[(c * self.h + y) * self.w..][..self.w]
+    }
+
+    /// 2×2 box average (sides halved, rounding down).
+    pub fn avg_pool2(&self) -> Planes {
+        Planes::by_rows(self.c, self.w / 2, self.h / 2, |c, y, dst| {
+            let (r0, r1) = (self.row(c, 2 * y), self.row(c, 2 * y + 1));
+            for (x, d) in dst.iter_mut().enumerate() {
+                *d = (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]) * 0.25;
+            }
+        })
+    }
+
+    /// Every value clamped to the largest of its 8 neighbours (edges replicated): an
+    /// isolated outlier (a firefly) takes its brightest neighbour's value, while anything
+    /// at least two pixels wide (an edge, a line, a highlight) keeps its extent, its peak
+    /// lowered at most to its second-brightest pixel. The result is still a value of the
+    /// neighbourhood, so a convex filter of it stays in the range of the original.
+    pub fn clamp_to_neighbours(&self) -> Planes {
+        let (w, h) = (self.w, self.h);
+        Planes::by_rows(self.c, w, h, |c, y, dst| {
+            let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| self.row(c, r));
+            for (x, d) in dst.iter_mut().enumerate() {
+                let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
+                let mut most = f32::NEG_INFINITY;
+                for (i, row) in rows.iter().enumerate() {
+                    for (j, &cx) in cols.iter().enumerate() {
+                        if (i, j) != (1, 1) {
+                            most = most.max(row[cx]);
+                        }
+                    }
+                }
+                *d = rows[1][x].min(most);
+            }
+        })
+    }
+
+    /// Adds `coarse` (half the size, as many planes) upsampled 2× to the nearest
+    /// neighbour, without building the upsampled planes.
+    pub fn add_up_nearest(&mut self, coarse: &Planes) {
+        assert_eq!((coarse.c, coarse.w * 2, coarse.h * 2), (self.c, self.w, self.h), "a half-size plane set");
+        let h = self.h;
+        self.data.par_chunks_mut(self.w).enumerate().for_each(|(i, row)| {
+            let s = coarse.row(i / h, i % h / 2);
+            for (x, v) in row.iter_mut().enumerate() {
+                *v += s[x / 2];
+            }
+        });
+    }
+
+    /// 2× nearest-neighbour upsampling.
+    pub fn up_nearest(&self) -> Planes {
+        Planes::by_rows(self.c, self.w * 2, self.h * 2, |c, y, dst| {
+            let s = self.row(c, y / 2);
+            for (x, v) in dst.iter_mut().enumerate() {
+                *v = s[x / 2];
+            }
+        })
+    }
+
+    /// 2× bilinear upsampling, pixel centres at half-integers, edges replicated: ¾ of the
+    /// parent plus ¼ of its neighbour on the output's side, along each axis (first along
+    /// rows, then between rows).
+    pub fn up_bilinear(&self) -> Planes {
+        let (w, h) = (self.w, self.h);
+        // Row `y` of plane `c` widened: ¾ of each parent plus ¼ of its left or right one.
+        let wide = |c: usize, y: usize, out: &mut [f32]| {
+            let s = self.row(c, y);
+            for x in 0..w {
+                let (before, after) = (s[x.saturating_sub(1)], s[(x + 1).min(w - 1)]);
+                out[2 * x] = s[x] * 0.75 + before * 0.25;
+                out[2 * x + 1] = s[x] * 0.75 + after * 0.25;
+            }
+        };
+        Planes::by_rows(self.c, 2 * w, 2 * h, |c, y2, dst| {
+            let y = y2 / 2;
+            let other = if y2 % 2 == 0 { y.saturating_sub(1) } else { (y + 1).min(h - 1) };
+            let mut near = vec![0f32; 2 * w];
+            let mut far = vec![0f32; 2 * w];
+            wide(c, y, &mut near);
+            wide(c, other, &mut far);
+            for ((d, n), f) in dst.iter_mut().zip(&near).zip(&far) {
+                *d = n * 0.75 + f * 0.25;
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clamping_to_neighbours_removes_isolated_outliers_only() {
+        let mut x = vec![0.5f32; 6 * 5];
+        x[2 * 6 + 1] = 40.0; // a firefly
+        x[6 + 4] = 9.0; // a two-pixel highlight
+        x[2 * 6 + 4] = 8.0;
+        x[4 * 6 + 5] = 0.0; // a dark pixel in a corner
+        let p = Planes::from_vec(1, 6, 5, x.clone()).clamp_to_neighbours();
+        let mut want = x;
+        want[2 * 6 + 1] = 0.5;
+        want[6 + 4] = 8.0;
+        assert_eq!(p.data, want);
+    }
+
+    #[test]
+    fn resampling_matches_its_definition() {
+        let p = Planes::from_vec(1, 4, 2, vec![0., 1., 2., 3., 4., 5., 6., 7.]);
+        assert_eq!(p.avg_pool2().data, [2.5, 4.5]);
+        let up = p.up_nearest();
+        assert_eq!(&up.data[..8], &[0., 0., 1., 1., 2., 2., 3., 3.]);
+        let row = Planes::from_vec(1, 2, 1, vec![0., 4.]).up_bilinear();
+        assert_eq!(row.data, [0., 1., 3., 4., 0., 1., 3., 4.]);
+    }
+}
