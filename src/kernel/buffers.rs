@@ -7,8 +7,8 @@ use std::sync::Mutex;
 
 /// Buffers smaller than this many floats (1 MiB) are left to the allocator.
 const MIN: usize = 1 << 18;
-/// The pool keeps at most this many floats (192 MiB) of idle buffers.
-const KEEP: usize = 48 << 20;
+/// The pool keeps at most this many floats (64 MiB) of idle buffers.
+const KEEP: usize = 16 << 20;
 
 /// Idle buffers, oldest first.
 static POOL: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());

@@ -101,11 +101,32 @@ fn pad_into(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: 
     });
 }
 
-thread_local! {
-    /// A reused padding buffer: fresh large allocations page-fault slowly (SPEC §5).
-    /// Taken out while in use, so a nested call on the same thread gets its own.
-    static SCRATCH: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+/// Rows `y0 − r .. y1 + r` of `c` planes of `w × h` (`input`), zero outside the plane,
+/// each row zero-padded by `r` each side, written into `buf` (resized): the padded input
+/// of output rows `y0..y1`.
+#[allow(clippy::too_many_arguments)]
+fn pad_rows(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: usize, y0: usize, y1: usize) {
+    let (pw, rows) = (w + 2 * r, y1 - y0 + 2 * r);
+    // Every value is written below, so a reused buffer of the right length needs no
+    // clearing.
+    buf.resize(c * rows * pw, 0.0);
+    for (ch, dst) in buf.chunks_mut(rows * pw).enumerate() {
+        for (j, row) in dst.chunks_mut(pw).enumerate() {
+            match (y0 + j).checked_sub(r).filter(|&y| y < h) {
+                Some(y) => {
+                    row[..r].fill(0.0);
+                    row[r..r + w].copy_from_slice(&input[(ch * h + y) * w..][..w]);
+                    row[r + w..].fill(0.0);
+                }
+                None => row.fill(0.0),
+            }
+        }
+    }
 }
+
+/// Output rows per parallel task of a convolution: the task pads just its own input rows
+/// ([`pad_rows`]), so no padded copy of a whole (possibly huge) input is ever held.
+const BAND: usize = 8;
 
 /// A raw pointer that rows written by different threads share; each row is written by
 /// exactly one task.
@@ -138,29 +159,33 @@ pub fn conv_batch(input: &[f32], items: usize, w: usize, h: usize, layer: &ConvL
         return out;
     }
     let r = (layer.k - 1) / 2;
-    let isa = Isa::detect();
-    // A 1×1 convolution reads its input in place.
-    let mut pad = if r > 0 { SCRATCH.with(|s| std::mem::take(&mut *s.borrow_mut())) } else { Vec::new() };
+    let (isa, pw) = (Isa::detect(), w + 2 * r);
     for i in 0..items {
         let item = &input[i * n_in..][..n_in];
-        if r > 0 {
-            pad_into(&mut pad, item, layer.cin, w, h, r);
-        }
-        let src = if r > 0 { &pad[..] } else { item };
         let ptr = RowsPtr(out.as_mut_ptr().wrapping_add(i * n_out));
-        let job = Job { src, layer, w, h, pw: w + 2 * r, ph: h + 2 * r, relu, isa };
-        (0..h).into_par_iter().for_each(|y| {
-            // SAFETY: row `y` of every output plane of item `i` is written by this task
-            // only, inside the buffer's capacity; `out` outlives the parallel loop.
-            unsafe { job.row(y, ptr.get()) }
+        if r == 0 {
+            // A 1×1 convolution reads its input in place.
+            let job = Job { src: item, layer, w, h, pw, ph: h, y0: 0, relu, isa };
+            (0..h).into_par_iter().for_each(|y| {
+                // SAFETY: row `y` of every output plane of item `i` is written by this
+                // task only, inside the buffer's capacity; `out` outlives the loop.
+                unsafe { job.row(y, ptr.get()) }
+            });
+            continue;
+        }
+        (0..h.div_ceil(BAND)).into_par_iter().for_each_init(Vec::new, |buf, b| {
+            let (y0, y1) = (b * BAND, (b * BAND + BAND).min(h));
+            pad_rows(buf, item, layer.cin, w, h, r, y0, y1);
+            let job = Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa };
+            for y in y0..y1 {
+                // SAFETY: as above, for the rows of this band.
+                unsafe { job.row(y, ptr.get()) }
+            }
         });
     }
     // SAFETY: every row of every channel of every item was written above (each path
     // writes columns 0..w of its rows).
     unsafe { out.set_len(items * n_out) };
-    if r > 0 {
-        SCRATCH.with(|s| *s.borrow_mut() = pad);
-    }
     out
 }
 
@@ -188,13 +213,15 @@ impl Isa {
 }
 
 struct Job<'a> {
-    /// Zero-padded input planes, `pw × ph` each.
+    /// Zero-padded input planes, `pw × ph` each, from output row `y0`'s first input row.
     src: &'a [f32],
     layer: &'a ConvLayer,
     w: usize,
     h: usize,
     pw: usize,
     ph: usize,
+    /// The output row `src`'s first rows belong to.
+    y0: usize,
     relu: bool,
     isa: Isa,
 }
@@ -295,7 +322,7 @@ impl Job<'_> {
                 let mut t = 0;
                 for ci in 0..l.cin {
                     for ky in 0..k {
-                        let row = &self.src[ci * plane + (y + ky) * self.pw + x..];
+                        let row = &self.src[ci * plane + (y - self.y0 + ky) * self.pw + x..];
                         for &v in &row[..k] {
                             acc = v.mul_add(panel[t * MR], acc);
                             t += 1;
@@ -329,7 +356,7 @@ impl Job<'_> {
                 for b in 0..l.cout.div_ceil(MR) {
                     let m = (l.cout - b * MR).min(MR);
                     let a = Block {
-                        src: self.src[(c0 * self.pw * self.ph + y * self.pw + x)..].as_ptr(),
+                        src: self.src[(c0 * self.pw * self.ph + (y - self.y0) * self.pw + x)..].as_ptr(),
                         panel: l.packed[(b * kk + c0 * k2) * MR..].as_ptr(),
                         bias: l.bias[b * MR..].as_ptr(),
                         dst: out.wrapping_add((b * MR * self.h + y) * self.w + x),
@@ -358,7 +385,7 @@ impl Job<'_> {
             for b in 0..l.cout.div_ceil(MR) {
                 let m = (l.cout - b * MR).min(MR);
                 let a = Block {
-                    src: self.src[(y * self.pw + x)..].as_ptr(),
+                    src: self.src[((y - self.y0) * self.pw + x)..].as_ptr(),
                     panel: l.packed[b * kk * MR..].as_ptr(),
                     bias: l.bias[b * MR..].as_ptr(),
                     dst: out.wrapping_add((b * MR * self.h + y) * self.w + x),
@@ -714,22 +741,26 @@ mod tests {
 
     #[test]
     fn every_instruction_set_gives_the_same_bits() {
-        let (cin, cout, k, w, h) = (6, 11, 3, 45, 4);
+        // More input channels than one chunk, more rows than one band, a ragged last block.
+        let (cin, cout, k, w, h) = (20, 11, 3, 45, 11);
         let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
         let layer = ConvLayer::new(&SplitMix64(8).centred(cout * cin * 9), &SplitMix64(9).centred(cout), cin, k);
+        let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         let run = |isa: Isa| {
             let mut pad = Vec::new();
             pad_into(&mut pad, &input.data, cin, w, h, 1);
             let mut out = Planes::zeros(cout, w, h);
-            let job = Job { src: &pad, layer: &layer, w, h, pw: w + 2, ph: h + 2, relu: false, isa };
+            let job = Job { src: &pad, layer: &layer, w, h, pw: w + 2, ph: h + 2, y0: 0, relu: false, isa };
             for y in 0..h {
                 // SAFETY: single-threaded; rows inside the buffer.
                 unsafe { job.row(y, out.data.as_mut_ptr()) };
             }
-            out.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            bits(&out.data)
         };
         let scalar = run(Isa::Scalar);
         assert_eq!(run(Isa::detect()), scalar);
+        // The banded, parallel path of `conv` too.
+        assert_eq!(bits(&conv(&input, &layer, false).data), scalar);
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
             assert_eq!(run(Isa::Avx2), scalar);

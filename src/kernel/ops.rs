@@ -3,6 +3,7 @@
 //! instead of through candle's composed ops (SPEC §5).
 
 use super::conv::{ConvLayer, conv_batch, weight_gradient};
+use super::planes::{self, Planes};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Storage, Tensor};
 
 /// The contiguous `f32` values of a tensor operand.
@@ -168,6 +169,167 @@ pub fn apply_kernels(logits: &Tensor, noisy: &Tensor, k: usize) -> Result<Tensor
     logits.contiguous()?.apply_op2(&noisy.contiguous()?.detach(), ApplyKernels { k })
 }
 
+/// The coarse-to-fine blend ([`planes::blend`]): `fine` `[B, 3, h, w]`, `coarse`
+/// `[B, 3, h/2, w/2]`, blend `logits` `[B, 1, h, w]`.
+struct Blend;
+
+impl Blend {
+    fn dims(fine: &Shape, coarse: &Shape, logits: &Shape) -> Result<(usize, usize, usize, usize)> {
+        let (b, c, h, w) = fine.dims4()?;
+        if coarse.dims4()? != (b, c, h / 2, w / 2) || logits.dims4()? != (b, 1, h, w) || h % 2 + w % 2 != 0 {
+            candle_core::bail!("kpcn-blend: fine {fine:?}, coarse {coarse:?} and logits {logits:?} do not fit");
+        }
+        Ok((b, c, h, w))
+    }
+}
+
+impl CustomOp3 for Blend {
+    fn name(&self) -> &'static str {
+        "kpcn-blend"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (b, c, h, w) = Blend::dims(l1.shape(), l2.shape(), l3.shape())?;
+        let (fine, coarse) = (values(s1, l1, "kpcn-blend fine")?, values(s2, l2, "kpcn-blend coarse")?);
+        let logits = values(s3, l3, "kpcn-blend logits")?;
+        let (n, m) = (c * h * w, c * h * w / 4);
+        let mut out = Vec::with_capacity(b * n);
+        for i in 0..b {
+            let mut f = Planes::from_vec(c, w, h, fine[i * n..][..n].to_vec());
+            let up = Planes::from_vec(c, w / 2, h / 2, coarse[i * m..][..m].to_vec()).up_bilinear();
+            planes::blend(&mut f, &up, &logits[i * h * w..][..h * w]);
+            out.extend_from_slice(&f.data);
+        }
+        Ok((CpuStorage::F32(out), Shape::from((b, c, h, w))))
+    }
+
+    fn bwd(
+        &self,
+        fine: &Tensor,
+        coarse: &Tensor,
+        logits: &Tensor,
+        _: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let (b, c, h, w) = Blend::dims(fine.shape(), coarse.shape(), logits.shape())?;
+        let (n, m, p) = (c * h * w, c * h * w / 4, h * w);
+        let grad = grad.contiguous()?;
+        let (mut d_fine, mut d_coarse, mut d_logits) = (Vec::with_capacity(b * n), Vec::new(), Vec::new());
+        with_values(&grad, "kpcn-blend gradient", |g| {
+            with_values(fine, "kpcn-blend fine", |fv| {
+                with_values(coarse, "kpcn-blend coarse", |cv| {
+                    with_values(logits, "kpcn-blend logits", |lv| {
+                        for i in 0..b {
+                            let up = Planes::from_vec(c, w / 2, h / 2, cv[i * m..][..m].to_vec()).up_bilinear();
+                            let (g, f, l) = (&g[i * n..][..n], &fv[i * n..][..n], &lv[i * p..][..p]);
+                            let alpha: Vec<f32> = l.iter().map(|&l| planes::blend_weight(l)).collect();
+                            let mut d_up = vec![0f32; n];
+                            let mut dl = vec![0f32; p];
+                            for (j, ((g, f), u)) in g.iter().zip(f).zip(&up.data).enumerate() {
+                                let a = alpha[j % p];
+                                d_fine.push(g * (1.0 - a));
+                                d_up[j] = g * a;
+                                dl[j % p] += g * (u - f);
+                            }
+                            // dα/dl = α(1 − α) inside the clamp, 0 where it clamps.
+                            for ((d, &a), &l) in dl.iter_mut().zip(&alpha).zip(l) {
+                                *d *= if l.abs() < planes::BLEND_LIMIT { a * (1.0 - a) } else { 0.0 };
+                            }
+                            d_logits.extend(dl);
+                            d_coarse.extend_from_slice(&Planes::from_vec(c, w, h, d_up).up_bilinear_adjoint().data);
+                        }
+                        Ok(())
+                    })
+                })
+            })
+        })?;
+        Ok((
+            Some(Tensor::from_vec(d_fine, fine.shape(), fine.device())?),
+            Some(Tensor::from_vec(d_coarse, coarse.shape(), coarse.device())?),
+            Some(Tensor::from_vec(d_logits, logits.shape(), logits.device())?),
+        ))
+    }
+}
+
+/// `(1 − α)·fine + α·up(coarse)` with `α` the clamped sigmoid of `logits` and `up`
+/// bilinear ([`planes::blend`]), differentiable in all three.
+pub fn blend(fine: &Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Tensor> {
+    fine.contiguous()?.apply_op3(&coarse.contiguous()?, &logits.contiguous()?, Blend)
+}
+
+/// `coarse` `[B, C₁, h/2, w/2]` upsampled 2× to the nearest neighbour, then `skip`
+/// `[B, C₂, h, w]` after it along the channels: the decoder's input.
+struct UpConcat;
+
+impl CustomOp2 for UpConcat {
+    fn name(&self) -> &'static str {
+        "kpcn-up-concat"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (b, c1, h2, w2) = l1.shape().dims4()?;
+        let (b2, c2, h, w) = l2.shape().dims4()?;
+        if b2 != b || (h, w) != (2 * h2, 2 * w2) {
+            candle_core::bail!("kpcn-up-concat: coarse {:?} does not upsample to skip {:?}", l1.shape(), l2.shape());
+        }
+        let (coarse, skip) = (values(s1, l1, "kpcn-up-concat coarse")?, values(s2, l2, "kpcn-up-concat skip")?);
+        let (m, n) = (c1 * h2 * w2, c2 * h * w);
+        let mut out = Vec::with_capacity(b * (4 * m + n));
+        for i in 0..b {
+            out.extend_from_slice(&Planes::from_vec(c1, w2, h2, coarse[i * m..][..m].to_vec()).up_nearest().data);
+            out.extend_from_slice(&skip[i * n..][..n]);
+        }
+        Ok((CpuStorage::F32(out), Shape::from((b, c1 + c2, h, w))))
+    }
+
+    fn bwd(
+        &self,
+        coarse: &Tensor,
+        skip: &Tensor,
+        _: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let (b, c1, h2, w2) = coarse.dims4()?;
+        let (_, c2, h, w) = skip.dims4()?;
+        let grad = grad.contiguous()?;
+        let (dc, ds) = with_values(&grad, "kpcn-up-concat gradient", |g| {
+            let (m, n) = (4 * c1 * h2 * w2, c2 * h * w);
+            let (mut dc, mut ds) = (Vec::with_capacity(b * m / 4), Vec::with_capacity(b * n));
+            for i in 0..b {
+                let item = &g[i * (m + n)..][..m + n];
+                // Each coarse value was copied to a 2×2 block: its gradient is their sum.
+                for c in 0..c1 {
+                    let p = &item[c * h * w..][..h * w];
+                    for y in 0..h2 {
+                        let (r0, r1) = (&p[2 * y * w..][..w], &p[(2 * y + 1) * w..][..w]);
+                        dc.extend((0..w2).map(|x| r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]));
+                    }
+                }
+                ds.extend_from_slice(&item[m..]);
+            }
+            Ok((dc, ds))
+        })?;
+        Ok((
+            Some(Tensor::from_vec(dc, coarse.shape(), coarse.device())?),
+            Some(Tensor::from_vec(ds, skip.shape(), skip.device())?),
+        ))
+    }
+}
+
+/// The decoder's input: `coarse` upsampled 2× to the nearest neighbour, then `skip`,
+/// along the channels; differentiable in both.
+pub fn up_concat(coarse: &Tensor, skip: &Tensor) -> Result<Tensor> {
+    coarse.contiguous()?.apply_op2(&skip.contiguous()?, UpConcat)
+}
+
 /// Which implementation a training graph runs: ours (the default), or candle's stock
 /// `conv2d` and a kernel application composed of candle ops, kept to measure against.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -192,6 +354,33 @@ impl Ops {
         }
     }
 
+    /// The decoder's input, as [`up_concat`].
+    pub fn up_concat(self, coarse: &Tensor, skip: &Tensor) -> Result<Tensor> {
+        match self {
+            Ops::Kpcn => up_concat(coarse, skip),
+            Ops::StockCandle => {
+                // Broadcasts, not candle 0.11's `upsample_nearest2d`: its backward overwrites
+                // instead of adding to the gradient of a tensor that has other uses.
+                let (b, c, h, w) = coarse.dims4()?;
+                let up = coarse.reshape((b, c, h, 1, w, 1))?.broadcast_as((b, c, h, 2, w, 2))?.contiguous()?;
+                Tensor::cat(&[up.reshape((b, c, 2 * h, 2 * w))?, skip.clone()], 1)
+            }
+        }
+    }
+
+    /// The coarse-to-fine blend, as [`blend`].
+    pub fn blend(self, fine: &Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Tensor> {
+        match self {
+            Ops::Kpcn => blend(fine, coarse, logits),
+            Ops::StockCandle => {
+                let limit = planes::BLEND_LIMIT as f64;
+                let alpha = (logits.clamp(-limit, limit)?.neg()?.exp()? + 1.0)?.recip()?;
+                let up = up_bilinear_composed(coarse)?;
+                fine.broadcast_mul(&(1.0 - &alpha)?)? + up.broadcast_mul(&alpha)?
+            }
+        }
+    }
+
     /// Softmax kernels applied to the noisy colour, as [`apply_kernels`].
     pub fn apply_kernels(self, logits: &Tensor, noisy: &Tensor, k: usize) -> Result<Tensor> {
         match self {
@@ -199,6 +388,22 @@ impl Ops {
             Ops::StockCandle => apply_kernels_composed(logits, noisy, k),
         }
     }
+}
+
+/// [`Planes::up_bilinear`] of `[B, C, H, W]` composed of candle ops: ¾ of each parent
+/// plus ¼ of its neighbour on the output's side (edges replicated), along each axis.
+fn up_bilinear_composed(x: &Tensor) -> Result<Tensor> {
+    let along = |x: &Tensor, dim: usize| -> Result<Tensor> {
+        let n = x.dim(dim)?;
+        let before = x.pad_with_same(dim, 1, 0)?.narrow(dim, 0, n)?;
+        let after = x.pad_with_same(dim, 0, 1)?.narrow(dim, 1, n)?;
+        let even = ((x * 0.75)? + (before * 0.25)?)?;
+        let odd = ((x * 0.75)? + (after * 0.25)?)?;
+        let mut dims = x.dims().to_vec();
+        dims[dim] *= 2;
+        Tensor::stack(&[even, odd], dim + 1)?.reshape(dims)
+    };
+    along(&along(x, 3)?, 2)
 }
 
 /// [`apply_kernels`] composed of candle ops (softmax with the maximum subtracted, then one
@@ -276,6 +481,47 @@ mod tests {
         let (y1, d1) = grad_of(|l| Ops::StockCandle.apply_kernels(l, &noisy, k).unwrap(), &logits, &g);
         close("output", &y0, &y1, 1e-5);
         close("logit gradient", &d0, &d1, 1e-4);
+    }
+
+    #[test]
+    fn the_blend_matches_its_composed_definition() {
+        let dev = Device::Cpu;
+        let (b, h, w) = (2, 6, 8);
+        let fine = Var::from_vec(SplitMix64(11).centred(b * 3 * h * w), (b, 3, h, w), &dev).unwrap();
+        let coarse = Var::from_vec(SplitMix64(12).centred(b * 3 * h * w / 4), (b, 3, h / 2, w / 2), &dev).unwrap();
+        let mut lv: Vec<f32> = SplitMix64(13).centred(b * h * w).iter().map(|v| v * 8.0).collect();
+        lv[3] = 45.0; // clamped: no gradient
+        let logits = Var::from_vec(lv, (b, 1, h, w), &dev).unwrap();
+        let g = Tensor::from_vec(SplitMix64(14).centred(b * 3 * h * w), (b, 3, h, w), &dev).unwrap();
+        let run = |ops: Ops| {
+            let y = ops.blend(fine.as_tensor(), coarse.as_tensor(), logits.as_tensor()).unwrap();
+            let grads = (&y * &g).unwrap().sum_all().unwrap().backward().unwrap();
+            let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let d = |v: &Var| flat(grads.get(v.as_tensor()).unwrap());
+            [flat(&y), d(&fine), d(&coarse), d(&logits)]
+        };
+        let (ours, theirs) = (run(Ops::Kpcn), run(Ops::StockCandle));
+        for (name, (a, b)) in ["output", "fine", "coarse", "logit"].iter().zip(ours.iter().zip(&theirs)) {
+            close(name, a, b, 1e-5);
+        }
+    }
+
+    #[test]
+    fn the_decoder_input_matches_its_composed_definition() {
+        let dev = Device::Cpu;
+        let coarse = Var::from_vec(SplitMix64(15).centred(2 * 3 * 2 * 3), (2, 3, 2, 3), &dev).unwrap();
+        let skip = Var::from_vec(SplitMix64(16).centred(2 * 2 * 4 * 6), (2, 2, 4, 6), &dev).unwrap();
+        let g = Tensor::from_vec(SplitMix64(17).centred(2 * 5 * 4 * 6), (2, 5, 4, 6), &dev).unwrap();
+        let run = |ops: Ops| {
+            let y = ops.up_concat(coarse.as_tensor(), skip.as_tensor()).unwrap();
+            let grads = (&y * &g).unwrap().sum_all().unwrap().backward().unwrap();
+            let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            [flat(&y), flat(grads.get(coarse.as_tensor()).unwrap()), flat(grads.get(skip.as_tensor()).unwrap())]
+        };
+        let (ours, theirs) = (run(Ops::Kpcn), run(Ops::StockCandle));
+        for (name, (a, b)) in ["output", "coarse", "skip"].iter().zip(ours.iter().zip(&theirs)) {
+            close(name, a, b, 1e-6);
+        }
     }
 
     #[test]

@@ -148,6 +148,61 @@ impl Planes {
     }
 }
 
+/// Blend logits are clamped to this magnitude before the sigmoid, so `exp` and its
+/// gradient stay finite.
+pub const BLEND_LIMIT: f32 = 30.0;
+
+/// The blend weight `α = 1 / (1 + e^{−l})` of logit `l` clamped to ±[`BLEND_LIMIT`].
+pub fn blend_weight(l: f32) -> f32 {
+    1.0 / (1.0 + (-l.clamp(-BLEND_LIMIT, BLEND_LIMIT)).exp())
+}
+
+/// The coarse-to-fine blend of the multi-scale network, in place: every plane of `fine`
+/// becomes `(1 − α)·fine + α·up`, with `α` from [`blend_weight`] of `logits` (one plane
+/// of the same size) and `up` the coarser result upsampled ([`Planes::up_bilinear`]).
+pub fn blend(fine: &mut Planes, up: &Planes, logits: &[f32]) {
+    let n = fine.w * fine.h;
+    assert_eq!((up.c, up.w, up.h, logits.len()), (fine.c, fine.w, fine.h, n), "blend operands differ in size");
+    let alpha: Vec<f32> = logits.par_iter().map(|&l| blend_weight(l)).collect();
+    fine.data.par_chunks_mut(n).zip(up.data.par_chunks(n)).for_each(|(dst, src)| {
+        for ((d, &u), &a) in dst.iter_mut().zip(src).zip(&alpha) {
+            *d = *d * (1.0 - a) + u * a;
+        }
+    });
+}
+
+impl Planes {
+    /// The adjoint of [`Planes::up_bilinear`]: given the gradient of the upsampled planes
+    /// (`self`, even sides), the gradient of the planes they came from.
+    pub fn up_bilinear_adjoint(&self) -> Planes {
+        let (w, h) = (self.w / 2, self.h / 2);
+        let mut out = Planes::zeros(self.c, w, h);
+        out.data.par_chunks_mut(w * h).enumerate().for_each(|(c, dst)| {
+            // Between rows: output rows 2y and 2y + 1 came from widened rows y and y ∓ 1.
+            let mut wide = vec![0f32; 2 * w * h];
+            for y in 0..h {
+                let (even, odd) = (self.row(c, 2 * y), self.row(c, 2 * y + 1));
+                let (above, below) = (y.saturating_sub(1), (y + 1).min(h - 1));
+                for x in 0..2 * w {
+                    wide[y * 2 * w + x] += 0.75 * (even[x] + odd[x]);
+                    wide[above * 2 * w + x] += 0.25 * even[x];
+                    wide[below * 2 * w + x] += 0.25 * odd[x];
+                }
+            }
+            // Along rows: columns 2x and 2x + 1 came from x and x ∓ 1.
+            for y in 0..h {
+                let (src, row) = (&wide[y * 2 * w..][..2 * w], &mut dst[y * w..][..w]);
+                for x in 0..w {
+                    row[x] += 0.75 * (src[2 * x] + src[2 * x + 1]);
+                    row[x.saturating_sub(1)] += 0.25 * src[2 * x];
+                    row[(x + 1).min(w - 1)] += 0.25 * src[2 * x + 1];
+                }
+            }
+        });
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -174,5 +229,16 @@ mod tests {
         assert_eq!(&up.data[..8], &[0., 0., 1., 1., 2., 2., 3., 3.]);
         let row = Planes::from_vec(1, 2, 1, vec![0., 4.]).up_bilinear();
         assert_eq!(row.data, [0., 1., 3., 4., 0., 1., 3., 4.]);
+    }
+
+    #[test]
+    fn the_bilinear_adjoint_is_the_transpose() {
+        // <up(x), g> = <x, upᵀ(g)> for random x and g.
+        let (c, w, h) = (2, 5, 3);
+        let x = Planes::from_vec(c, w, h, crate::rng::SplitMix64(1).centred(c * w * h));
+        let g = Planes::from_vec(c, 2 * w, 2 * h, crate::rng::SplitMix64(2).centred(c * 4 * w * h));
+        let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(a, b)| (a * b) as f64).sum::<f64>();
+        let (lhs, rhs) = (dot(&x.up_bilinear().data, &g.data), dot(&x.data, &g.up_bilinear_adjoint().data));
+        assert!((lhs - rhs).abs() < 1e-5 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
     }
 }

@@ -27,10 +27,6 @@ use crate::kernel::ops::Ops;
 use crate::kernel::planes::Planes;
 use candle_core::Tensor;
 
-/// Blend logits are clamped to this magnitude before the sigmoid, so `exp` and its
-/// gradient stay finite.
-pub const BLEND_LIMIT: f32 = 30.0;
-
 /// Width of scale `s`.
 pub fn width(a: &Architecture, s: usize) -> usize {
     a.channels * (s + 1)
@@ -146,37 +142,6 @@ pub fn colour_pyramid(noisy: Planes, levels: usize) -> Vec<Planes> {
     colour
 }
 
-/// 2× nearest-neighbour upsampling of `[B, C, H, W]`. Composed from broadcasts: candle
-/// 0.11's own `upsample_nearest2d` backward overwrites instead of adding to the gradient
-/// of a tensor that has other uses.
-pub fn up_nearest(x: &Tensor) -> Result<Tensor, ModelError> {
-    let (b, c, h, w) = x.dims4()?;
-    let y = x.reshape((b, c, h, 1, w, 1))?.broadcast_as((b, c, h, 2, w, 2))?.contiguous()?;
-    Ok(y.reshape((b, c, 2 * h, 2 * w))?)
-}
-
-/// 2× bilinear upsampling of `[B, C, H, W]` (pixel centres at half-integers, edges
-/// replicated): each output is ¾ of its parent plus ¼ of the parent's neighbour on its
-/// side, along each axis.
-pub fn up_bilinear(x: &Tensor) -> Result<Tensor, ModelError> {
-    let along = |x: &Tensor, dim: usize| -> Result<Tensor, ModelError> {
-        let n = x.dim(dim)?;
-        let before = x.pad_with_same(dim, 1, 0)?.narrow(dim, 0, n)?;
-        let after = x.pad_with_same(dim, 0, 1)?.narrow(dim, 1, n)?;
-        let even = ((x * 0.75)? + (before * 0.25)?)?;
-        let odd = ((x * 0.75)? + (after * 0.25)?)?;
-        let mut dims = x.dims().to_vec();
-        dims[dim] *= 2;
-        Ok(Tensor::stack(&[even, odd], dim + 1)?.reshape(dims)?)
-    };
-    along(&along(x, 3)?, 2)
-}
-
-/// `1 / (1 + e^{−x})` with `x` clamped to ±[`BLEND_LIMIT`].
-pub fn sigmoid(x: &Tensor) -> Result<Tensor, ModelError> {
-    Ok((x.clamp(-BLEND_LIMIT, BLEND_LIMIT)?.neg()?.exp()? + 1.0)?.recip()?)
-}
-
 /// Evaluates a branch on a region: features `[B, 27, S, S']` and the noisy colour `c̃`
 /// `[B, 3, S, S']` of the same pixels (sides multiples of [`Architecture::alignment`]);
 /// returns the denoised `c̃` `[B, 3, S, S']`. `ops` picks the implementation. Convolutions pad with zeros and kernels
@@ -203,7 +168,7 @@ pub fn forward(
     }
     let mut feats: Vec<Tensor> = enc.clone();
     for (j, s) in (1..l).rev().enumerate() {
-        let x = Tensor::cat(&[up_nearest(&feats[s + 1])?, enc[s].clone()], 1)?;
+        let x = ops.up_concat(&feats[s + 1], &enc[s])?;
         feats[s] = conv(&x, dec + j, true)?;
     }
     // The noisy colour is data, not a function of the weights: its pyramid needs no
@@ -222,18 +187,14 @@ pub fn forward(
     let (k, r) = (a.kernel_size, (a.kernel_size - 1) / 2);
     let mut out: Option<Tensor> = None;
     for (j, s) in (0..l).rev().enumerate() {
-        let x = if s == 0 { Tensor::cat(&[up_nearest(&feats[1])?, enc[0].clone()], 1)? } else { feats[s].clone() };
+        let x = if s == 0 { ops.up_concat(&feats[1], &enc[0])? } else { feats[s].clone() };
         let h = conv(&x, head + j, false)?;
         let logits = h.narrow(1, 0, k * k)?;
         let padded = colour[s].pad_with_same(2, r, r)?.pad_with_same(3, r, r)?;
         let o = ops.apply_kernels(&logits, &padded, k)?;
         out = Some(match out {
             None => o,
-            Some(coarse) => {
-                let alpha = sigmoid(&h.narrow(1, k * k, 1)?)?;
-                let up = up_bilinear(&coarse)?;
-                (o.broadcast_mul(&(1.0 - &alpha)?)? + up.broadcast_mul(&alpha)?)?
-            }
+            Some(coarse) => ops.blend(&o, &coarse, &h.narrow(1, k * k, 1)?)?,
         });
     }
     Ok(out.expect("validated: at least one level"))

@@ -6,7 +6,7 @@
 use super::{Architecture, BranchWeights, ModelError, multiscale};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::conv::{ConvLayer, conv};
-use crate::kernel::planes::Planes;
+use crate::kernel::planes::{Planes, blend};
 use rayon::prelude::*;
 
 /// Working bytes per region pixel, for tile budgets: the input, the full-resolution
@@ -102,19 +102,8 @@ pub fn forward(
         out = Some(match out {
             None => o,
             Some(coarse) => {
-                let up = coarse.up_bilinear();
-                let n = o.w * o.h;
-                let alpha: Vec<f32> = logits
-                    .plane(k2)
-                    .par_iter()
-                    .map(|&v| 1.0 / (1.0 + (-v.clamp(-multiscale::BLEND_LIMIT, multiscale::BLEND_LIMIT)).exp()))
-                    .collect();
                 let mut blended = o;
-                blended.data.par_chunks_mut(n).zip(up.data.par_chunks(n)).for_each(|(dst, src)| {
-                    for ((d, &u), &a) in dst.iter_mut().zip(src).zip(&alpha) {
-                        *d = *d * (1.0 - a) + u * a;
-                    }
-                });
+                blend(&mut blended, &coarse.up_bilinear(), logits.plane(k2));
                 blended
             }
         });
