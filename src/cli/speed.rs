@@ -24,9 +24,10 @@ pub struct SpeedArgs {
     /// Models, comma-separated: `default`, preset names, or .safetensors files.
     #[arg(long, default_value = "default", value_name = "M,M,…")]
     pub models: String,
-    /// Frame size.
-    #[arg(long, default_value = "1280x720", value_parser = super::render::parse_resolution, value_name = "WxH")]
-    pub resolution: (usize, usize),
+    /// Frame sizes, comma-separated (e.g. `1280x720,1920x1080,3840x2160`); `--layers`
+    /// uses the first.
+    #[arg(long, default_value = "1280x720", value_delimiter = ',', value_parser = super::render::parse_resolution, value_name = "WxH,…")]
+    pub resolution: Vec<(usize, usize)>,
     /// Scene family of the frame (`kpcn scenes` lists them).
     #[arg(long, default_value = "product")]
     pub family: String,
@@ -36,9 +37,10 @@ pub struct SpeedArgs {
     /// OIDN (hdr + albedo + normal, quality high, via `pyoidn`) as the peer.
     #[arg(long, value_enum, default_value_t = Oidn::Auto)]
     pub oidn: Oidn,
-    /// Threads.
-    #[arg(long, default_value_t = 2, value_name = "N")]
-    pub threads: usize,
+    /// Thread counts, comma-separated (e.g. `1,2` for the scaling); `--layers` uses the
+    /// first.
+    #[arg(long, default_value = "2", value_delimiter = ',', value_name = "N,…")]
+    pub threads: Vec<usize>,
     /// Instead of whole frames, time each convolution shape of the first model: forward at
     /// the frame size's scales (as `kpcn denoise` runs it) and forward + backward on a
     /// training batch (6 patches of 64² plus context). `benches/conv_vs_torch.py` sets
@@ -55,45 +57,58 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
     if args.layers {
         return layers(args);
     }
-    let (w, h) = args.resolution;
     let desc = generate(&args.family, 1).with_context(|| format!("--family: no family `{}`", args.family))?;
     let use_oidn = args.oidn.enabled()?;
-    let threads = args.threads.max(1);
     let dir = std::env::temp_dir().join(format!("kpcn-speed-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     let result = (|| -> anyhow::Result<()> {
-        let opts = RenderOptions { width: w, height: h, checkpoints: vec![16], sample_seed: 1, nee: true };
-        let written = render_to_dir(&desc, &opts, None, &dir, &WriteOptions::default(), &|_| {})?;
-        let fb = FrameBuffers::read(&written.noisy[0].1)?;
-        let k = Mapping::for_frame(&fb, None).extract(&fb)?;
-        let mpix = (w * h) as f64 / 1e6;
-        println!("{} {w}×{h}, {threads} threads, fastest of {} after a warm-up", desc.name, args.repeat.max(1));
-        println!("{:<28} {:>12} {:>9} {:>9} {:>9}", "method", "kFLOP/px", "seconds", "MPix/s", "× OIDN");
-        let mut rows = Vec::new();
-        for m in args.models.split(',').map(str::trim) {
-            let model = Model::resolve(m)?;
-            let flops = model.arch.flops_per_pixel();
-            let d = Denoiser::new(model, Options { threads: Some(threads), ..Options::default() })?;
-            d.denoise(&k, &|_| true)?;
-            let mut best = f64::INFINITY;
-            for _ in 0..args.repeat.max(1) {
-                let t = std::time::Instant::now();
-                d.denoise(&k, &|_| true)?;
-                best = best.min(t.elapsed().as_secs_f64());
+        let models: Vec<(&str, Model)> = args
+            .models
+            .split(',')
+            .map(str::trim)
+            .map(|m| Ok((m, Model::resolve(m)?)))
+            .collect::<anyhow::Result<_>>()?;
+        println!("{}, fastest of {} after a warm-up; OIDN measured in the same run", desc.name, args.repeat.max(1));
+        println!(
+            "{:<11} {:>7} {:<24} {:>9} {:>9} {:>9} {:>9}",
+            "frame", "threads", "method", "kFLOP/px", "seconds", "MPix/s", "× OIDN"
+        );
+        for &(w, h) in &args.resolution {
+            let opts = RenderOptions { width: w, height: h, checkpoints: vec![16], sample_seed: 1, nee: true };
+            let written = render_to_dir(&desc, &opts, None, &dir, &WriteOptions::default(), &|_| {})?;
+            let fb = FrameBuffers::read(&written.noisy[0].1)?;
+            let k = Mapping::for_frame(&fb, None).extract(&fb)?;
+            drop(fb);
+            let mpix = (w * h) as f64 / 1e6;
+            for &threads in &args.threads {
+                let threads = threads.max(1);
+                let mut rows = Vec::new();
+                for (m, model) in &models {
+                    let flops = model.arch.flops_per_pixel();
+                    let d = Denoiser::new(model.clone(), Options { threads: Some(threads), ..Options::default() })?;
+                    let secs = fastest(args.repeat, || {
+                        d.denoise(&k, &|_| true)?;
+                        Ok(())
+                    })?;
+                    rows.push((format!("kpcn {m}"), Some(flops / 1e3), secs));
+                }
+                let oidn_secs = if use_oidn {
+                    let (_, secs, _) = oidn(&k, &dir, threads)?;
+                    rows.push(("oidn (high)".into(), None, secs));
+                    Some(secs)
+                } else {
+                    None
+                };
+                for (name, kflop, secs) in rows {
+                    let kflop = kflop.map_or("—".into(), |f| format!("{f:.1}"));
+                    let ratio = oidn_secs.map_or("—".into(), |o| format!("{:.2}", secs / o));
+                    println!(
+                        "{:<11} {threads:>7} {name:<24} {kflop:>9} {secs:>9.3} {:>9.2} {ratio:>9}",
+                        format!("{w}×{h}"),
+                        mpix / secs
+                    );
+                }
             }
-            rows.push((format!("kpcn {m}"), Some(flops / 1e3), best));
-        }
-        let oidn_secs = if use_oidn {
-            let (_, secs, _) = oidn(&k, &dir, threads)?;
-            rows.push(("oidn (high)".into(), None, secs));
-            Some(secs)
-        } else {
-            None
-        };
-        for (name, kflop, secs) in rows {
-            let kflop = kflop.map_or("—".into(), |f| format!("{f:.1}"));
-            let ratio = oidn_secs.map_or("—".into(), |o| format!("{:.2}", secs / o));
-            println!("{name:<28} {kflop:>12} {secs:>9.3} {:>9.2} {ratio:>9}", mpix / secs);
         }
         Ok(())
     })();
@@ -140,8 +155,9 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
     let model = Model::resolve(name)?;
     let arch = model.arch;
     anyhow::ensure!(arch.design == Design::MultiScale, "--layers times the multi-scale design; `{name}` is flat");
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(args.threads.max(1)).build()?;
-    let (fw, fh) = args.resolution;
+    let threads = args.threads.first().copied().unwrap_or(2).max(1);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let (fw, fh) = args.resolution.first().copied().unwrap_or((1280, 720));
     let (m, _) = arch.train_margins();
     let (batch, side) = (6, 64 + 2 * m);
     let shapes = multiscale::layer_shapes(&arch);
@@ -210,12 +226,12 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
             println!(
                 "{}",
                 serde_json::to_string_pretty(
-                    &serde_json::json!({ "model": name, "threads": args.threads, "layers": items })
+                    &serde_json::json!({ "model": name, "threads": threads, "layers": items })
                 )?
             );
         }
         Format::Table | Format::Csv => {
-            println!("{name}: each convolution shape, {} threads, fastest of {}", args.threads, args.repeat.max(1));
+            println!("{name}: each convolution shape, {threads} threads, fastest of {}", args.repeat.max(1));
             println!("{:<8} {:>10} {:>4} {:>14} {:>10} {:>9}", "pass", "cin→cout", "k", "batch×W×H", "ms", "GFLOP/s");
             for r in &rows {
                 let shape = format!("{}→{}", r.cin, r.cout);

@@ -377,11 +377,13 @@ impl Job<'_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn row_avx2(&self, y: usize, out: *mut f32) {
+        use std::arch::x86_64::*;
         const NR: usize = 8;
         let l = self.layer;
         let kk = l.cin * l.k * l.k;
-        let full = self.w / NR * NR;
-        for x in (0..full).step_by(NR) {
+        for x in (0..self.w).step_by(NR) {
+            let left = (self.w - x).min(NR) as i32;
+            let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
             for b in 0..l.cout.div_ceil(MR) {
                 let m = (l.cout - b * MR).min(MR);
                 let a = Block {
@@ -394,12 +396,17 @@ impl Job<'_> {
                     first: true,
                     last: true,
                 };
-                // SAFETY: 8 columns inside the row; reads inside the padded planes.
-                unsafe { with_m!(m, M => block_avx2::<M>(self, &a)) };
+                // SAFETY: unmasked reads stay inside the padded planes; writes stay in
+                // row y of channels b·MR.. + m, masked to the columns < w.
+                unsafe {
+                    if left == NR as i32 {
+                        with_m!(m, M => block_avx2::<M, false>(self, &a, mask))
+                    } else {
+                        with_m!(m, M => block_avx2::<M, true>(self, &a, mask))
+                    }
+                };
             }
         }
-        // SAFETY: the caller's contract.
-        unsafe { self.row_scalar(y, out, full) }
     }
 }
 
@@ -474,13 +481,14 @@ unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, ma
     }
 }
 
-/// `M` output channels × 8 pixels.
+/// `M` output channels × 8 pixels; only the lanes of `mask` (the columns < w) when
+/// `MASKED`.
 ///
 /// # Safety
-/// AVX2 and FMA are available; `a`'s pointers are valid for 8 columns.
+/// AVX2 and FMA are available; `a`'s pointers are valid for the unmasked lanes.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn block_avx2<const M: usize>(job: &Job, a: &Block) {
+unsafe fn block_avx2<const M: usize, const MASKED: bool>(job: &Job, a: &Block, mask: std::arch::x86_64::__m256i) {
     use std::arch::x86_64::*;
     let (k, cin, pw, plane) = (job.layer.k, a.channels, job.pw, job.pw * job.ph);
     unsafe {
@@ -493,7 +501,7 @@ unsafe fn block_avx2<const M: usize>(job: &Job, a: &Block) {
             for ky in 0..k {
                 let row = a.src.add(ci * plane + ky * pw);
                 for kx in 0..k {
-                    let v = _mm256_loadu_ps(row.add(kx));
+                    let v = if MASKED { _mm256_maskload_ps(row.add(kx), mask) } else { _mm256_loadu_ps(row.add(kx)) };
                     for (j, s) in acc.iter_mut().enumerate() {
                         *s = _mm256_fmadd_ps(v, _mm256_set1_ps(*wp.add(j)), *s);
                     }
@@ -503,7 +511,11 @@ unsafe fn block_avx2<const M: usize>(job: &Job, a: &Block) {
         }
         for (j, &s) in acc.iter().enumerate() {
             let o = if job.relu { _mm256_max_ps(s, _mm256_setzero_ps()) } else { s };
-            _mm256_storeu_ps(a.dst.add(j * a.out_plane), o);
+            if MASKED {
+                _mm256_maskstore_ps(a.dst.add(j * a.out_plane), mask, o);
+            } else {
+                _mm256_storeu_ps(a.dst.add(j * a.out_plane), o);
+            }
         }
     }
 }
@@ -513,6 +525,22 @@ unsafe fn block_avx2<const M: usize>(job: &Job, a: &Block) {
 /// `grad` hold `items` consecutive images of `cin` and `cout` planes of `w × h`.
 #[allow(clippy::too_many_arguments)]
 pub fn weight_gradient(
+    input: &[f32],
+    grad: &[f32],
+    items: usize,
+    w: usize,
+    h: usize,
+    cin: usize,
+    cout: usize,
+    k: usize,
+) -> Vec<f32> {
+    weight_gradient_on(Isa::detect(), input, grad, items, w, h, cin, cout, k)
+}
+
+/// [`weight_gradient`] on the given instruction set.
+#[allow(clippy::too_many_arguments)]
+fn weight_gradient_on(
+    isa: Isa,
     input: &[f32],
     grad: &[f32],
     items: usize,
@@ -542,7 +570,6 @@ pub fn weight_gradient(
     let (co_blocks, ci_blocks) = (cout.div_ceil(mb), cin.div_ceil(nb));
     let block = mb * nb * k2;
     let band = (32768 / (cin * pw).max(1)).clamp(1, h.max(1));
-    let isa = Isa::detect();
     let mut blocks = vec![0f32; co_blocks * ci_blocks * block];
     blocks.par_chunks_mut(ci_blocks * block).enumerate().for_each(|(cb, taps)| {
         let co = cb * mb;
@@ -571,6 +598,21 @@ pub fn weight_gradient(
                                 (1, 1, 3) => t.sum_avx512::<1, 1, 3>(rows.clone(), nb, acc),
                                 (1..=4, 1..=4, 1) => {
                                     with_4!(m, M => with_4!(n, N => t.sum_avx512::<M, N, 1>(rows.clone(), nb, acc)))
+                                }
+                                _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
+                            }
+                        }
+                        continue;
+                    }
+                    #[cfg(target_arch = "x86_64")]
+                    if isa == Isa::Avx2 {
+                        // SAFETY: AVX2 and FMA are available (detected).
+                        unsafe {
+                            match (m, n, k) {
+                                (2, 1, 3) => t.sum_avx2::<2, 1, 3>(rows.clone(), nb, acc),
+                                (1, 1, 3) => t.sum_avx2::<1, 1, 3>(rows.clone(), nb, acc),
+                                (1..=4, 1..=4, 1) => {
+                                    with_4!(m, M => with_4!(n, N => t.sum_avx2::<M, N, 1>(rows.clone(), nb, acc)))
                                 }
                                 _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
                             }
@@ -702,6 +744,64 @@ impl Taps<'_> {
     }
 }
 
+impl Taps<'_> {
+    /// [`Taps::sum_avx512`] with AVX2: 8 pixels at a time into the first 8 of 16 lanes.
+    ///
+    /// # Safety
+    /// AVX2 and FMA are available.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::needless_range_loop)] // indices name the accumulator block's axes
+    unsafe fn sum_avx2<const M: usize, const N: usize, const K: usize>(
+        &self,
+        rows: Range<usize>,
+        nb: usize,
+        out: &mut [f32],
+    ) {
+        use std::arch::x86_64::*;
+        let (w, h, pw, pp) = (self.w, self.h, self.pw, self.pw * self.ph);
+        assert!(
+            rows.end <= h
+                && self.grad.len() >= M * w * h
+                && self.src.len() >= (N - 1) * pp + (h + K - 1) * pw
+                && N <= nb
+                && out.len() >= M * nb * K * K * 16
+        );
+        let lane = |i: usize| ((((i / (N * K * K)) * nb + (i / (K * K)) % N) * K + (i / K) % K) * K + i % K) * 16;
+        // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
+        unsafe {
+            let mut acc = [[[[_mm256_setzero_ps(); K]; K]; N]; M];
+            for (i, a) in acc.iter_mut().flatten().flatten().flatten().enumerate() {
+                *a = _mm256_loadu_ps(out.as_ptr().add(lane(i)));
+            }
+            for y in rows {
+                for x in (0..w).step_by(8) {
+                    let left = (w - x).min(8) as i32;
+                    let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+                    let mut g = [_mm256_setzero_ps(); M];
+                    for (j, gv) in g.iter_mut().enumerate() {
+                        *gv = _mm256_maskload_ps(self.grad.as_ptr().add(j * w * h + y * w + x), mask);
+                    }
+                    for c in 0..N {
+                        for ky in 0..K {
+                            let row = self.src.as_ptr().add(c * pp + (y + ky) * pw + x);
+                            for kx in 0..K {
+                                let v = _mm256_maskload_ps(row.add(kx), mask);
+                                for j in 0..M {
+                                    acc[j][c][ky][kx] = _mm256_fmadd_ps(g[j], v, acc[j][c][ky][kx]);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            for (i, a) in acc.iter().flatten().flatten().flatten().enumerate() {
+                _mm256_storeu_ps(out.as_mut_ptr().add(lane(i)), *a);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -806,7 +906,14 @@ mod tests {
             let back = ConvLayer::transposed(&wt, cout, cin, k);
             let ours_dx = conv_batch(&g, 2, w, h, &back, false);
             let ours_dw = weight_gradient(&x, &g, 2, w, h, cin, cout, k);
-            for (name, a, b) in [("input", &ours_dx, &dx), ("weight", &ours_dw, &dw)] {
+            let mut checks = vec![("input", ours_dx, &dx), ("weight", ours_dw, &dw)];
+            let scalar = weight_gradient_on(Isa::Scalar, &x, &g, 2, w, h, cin, cout, k);
+            checks.push(("weight (scalar)", scalar, &dw));
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                checks.push(("weight (AVX2)", weight_gradient_on(Isa::Avx2, &x, &g, 2, w, h, cin, cout, k), &dw));
+            }
+            for (name, a, b) in checks {
                 assert_eq!(a.len(), b.len());
                 for (i, (a, b)) in a.iter().zip(b.iter()).enumerate() {
                     assert!(
