@@ -651,6 +651,17 @@ struct Taps<'a> {
 }
 
 impl Taps<'_> {
+    /// Whether a block of `m` gradients × `n` input channels × `k²` taps over `rows` stays
+    /// inside the planes and an accumulator slice of `out` floats (lanes laid out for `nb`).
+    fn fits(&self, m: usize, n: usize, k: usize, rows: &Range<usize>, nb: usize, out: usize) -> bool {
+        let (w, h, pw) = (self.w, self.h, self.pw);
+        rows.end <= h
+            && self.grad.len() >= m * w * h
+            && self.src.len() >= (n.max(1) - 1) * pw * self.ph + (h + k - 1) * pw
+            && n <= nb
+            && out >= m * nb * k * k * 16
+    }
+
     /// Adds `Σ grad[j]·src[c]` over `rows` at each of the `k²` taps to lane 0 of
     /// `acc[((j·nb + c)·k² + tap)·16..]`.
     #[allow(clippy::too_many_arguments)]
@@ -690,13 +701,7 @@ impl Taps<'_> {
     ) {
         use std::arch::x86_64::*;
         let (w, h, pw, pp) = (self.w, self.h, self.pw, self.pw * self.ph);
-        assert!(
-            rows.end <= h
-                && self.grad.len() >= M * w * h
-                && self.src.len() >= (N - 1) * pp + (h + K - 1) * pw
-                && N <= nb
-                && out.len() >= M * nb * K * K * 16
-        );
+        assert!(self.fits(M, N, K, &rows, nb, out.len()), "a weight-gradient block outside its planes");
         // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
         unsafe {
             let mut acc = [[[[_mm512_setzero_ps(); K]; K]; N]; M];
@@ -760,13 +765,7 @@ impl Taps<'_> {
     ) {
         use std::arch::x86_64::*;
         let (w, h, pw, pp) = (self.w, self.h, self.pw, self.pw * self.ph);
-        assert!(
-            rows.end <= h
-                && self.grad.len() >= M * w * h
-                && self.src.len() >= (N - 1) * pp + (h + K - 1) * pw
-                && N <= nb
-                && out.len() >= M * nb * K * K * 16
-        );
+        assert!(self.fits(M, N, K, &rows, nb, out.len()), "a weight-gradient block outside its planes");
         let lane = |i: usize| ((((i / (N * K * K)) * nb + (i / (K * K)) % N) * K + (i / K) % K) * K + i % K) * 16;
         // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
         unsafe {
