@@ -201,7 +201,7 @@ impl Isa {
     fn detect() -> Isa {
         #[cfg(target_arch = "x86_64")]
         {
-            if std::env::var_os("KPCN_NO_AVX512").is_none() && std::arch::is_x86_feature_detected!("avx512f") {
+            if super::simd::avx512() {
                 return Isa::Avx512;
             }
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {

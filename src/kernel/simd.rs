@@ -4,14 +4,18 @@
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
-/// Whether the AVX-512 paths run (`KPCN_NO_AVX512` set turns them off, for comparing).
+/// Whether the AVX-512 paths run (`KPCN_NO_AVX512` set turns them off, for comparing);
+/// decided once per process, since hot loops ask.
 pub fn avx512() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::env::var_os("KPCN_NO_AVX512").is_none() && std::arch::is_x86_feature_detected!("avx512f")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    false
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::env::var_os("KPCN_NO_AVX512").is_none() && std::arch::is_x86_feature_detected!("avx512f")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    })
 }
 
 /// `e^x` for `x ≤ 0` (Cephes' single-precision polynomial after a range reduction by
