@@ -226,65 +226,17 @@ struct Job<'a> {
     isa: Isa,
 }
 
-/// Evaluates `$body` with the constant `$M` = `$m` (1..=8), so micro-kernels get their
-/// channel count at compile time.
-macro_rules! with_m {
-    ($m:expr, $M:ident => $body:expr) => {
+/// Evaluates `$body` with the constant `$M` equal to `$m`, one of the listed values (the
+/// last one when no other matches), so micro-kernels get their block sizes at compile time.
+macro_rules! with_const {
+    ($m:expr, $M:ident => $body:expr, [$($n:literal)*] else $last:literal) => {
         match $m {
-            8 => {
-                const $M: usize = 8;
+            $($n => {
+                const $M: usize = $n;
                 $body
-            }
-            7 => {
-                const $M: usize = 7;
-                $body
-            }
-            6 => {
-                const $M: usize = 6;
-                $body
-            }
-            5 => {
-                const $M: usize = 5;
-                $body
-            }
-            4 => {
-                const $M: usize = 4;
-                $body
-            }
-            3 => {
-                const $M: usize = 3;
-                $body
-            }
-            2 => {
-                const $M: usize = 2;
-                $body
-            }
+            })*
             _ => {
-                const $M: usize = 1;
-                $body
-            }
-        }
-    };
-}
-
-/// [`with_m!`] for 1..=4.
-macro_rules! with_4 {
-    ($m:expr, $M:ident => $body:expr) => {
-        match $m {
-            4 => {
-                const $M: usize = 4;
-                $body
-            }
-            3 => {
-                const $M: usize = 3;
-                $body
-            }
-            2 => {
-                const $M: usize = 2;
-                $body
-            }
-            _ => {
-                const $M: usize = 1;
+                const $M: usize = $last;
                 $body
             }
         }
@@ -368,7 +320,7 @@ impl Job<'_> {
                     // SAFETY: unmasked reads stay inside the padded planes; writes (and
                     // the reads of partial sums) stay in row y of channels b·MR.. + m,
                     // masked to the columns < w.
-                    unsafe { with_m!(m, M => block_avx512::<M, NV>(self, &a, masks)) };
+                    unsafe { with_const!(m, M => block_avx512::<M, NV>(self, &a, masks), [8 7 6 5 4 3 2] else 1) };
                 }
             }
         }
@@ -400,9 +352,9 @@ impl Job<'_> {
                 // row y of channels b·MR.. + m, masked to the columns < w.
                 unsafe {
                     if left == NR as i32 {
-                        with_m!(m, M => block_avx2::<M, false>(self, &a, mask))
+                        with_const!(m, M => block_avx2::<M, false>(self, &a, mask), [8 7 6 5 4 3 2] else 1)
                     } else {
-                        with_m!(m, M => block_avx2::<M, true>(self, &a, mask))
+                        with_const!(m, M => block_avx2::<M, true>(self, &a, mask), [8 7 6 5 4 3 2] else 1)
                     }
                 };
             }
@@ -597,7 +549,7 @@ fn weight_gradient_on(
                                 (2, 1, 3) => t.sum_avx512::<2, 1, 3>(rows.clone(), nb, acc),
                                 (1, 1, 3) => t.sum_avx512::<1, 1, 3>(rows.clone(), nb, acc),
                                 (1..=4, 1..=4, 1) => {
-                                    with_4!(m, M => with_4!(n, N => t.sum_avx512::<M, N, 1>(rows.clone(), nb, acc)))
+                                    with_const!(m, M => with_const!(n, N => t.sum_avx512::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1)
                                 }
                                 _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
                             }
@@ -612,7 +564,7 @@ fn weight_gradient_on(
                                 (2, 1, 3) => t.sum_avx2::<2, 1, 3>(rows.clone(), nb, acc),
                                 (1, 1, 3) => t.sum_avx2::<1, 1, 3>(rows.clone(), nb, acc),
                                 (1..=4, 1..=4, 1) => {
-                                    with_4!(m, M => with_4!(n, N => t.sum_avx2::<M, N, 1>(rows.clone(), nb, acc)))
+                                    with_const!(m, M => with_const!(n, N => t.sum_avx2::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1)
                                 }
                                 _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
                             }
