@@ -541,36 +541,28 @@ fn weight_gradient_on(
                         pw,
                         ph,
                     };
+                    // The block shapes the vector kernels are built for; others go scalar.
+                    #[allow(unused_macros)] // unused off x86-64
+                    macro_rules! blocks {
+                        ($sum:ident) => {
+                            match (m, n, k) {
+                                (2, 1, 3) => t.$sum::<2, 1, 3>(rows.clone(), nb, acc),
+                                (1, 1, 3) => t.$sum::<1, 1, 3>(rows.clone(), nb, acc),
+                                (1..=4, 1..=4, 1) => with_const!(m, M => with_const!(n, N =>
+                                    t.$sum::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1),
+                                _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
+                            }
+                        };
+                    }
                     #[cfg(target_arch = "x86_64")]
-                    if isa == Isa::Avx512 {
+                    match isa {
                         // SAFETY: AVX-512F is available (detected).
-                        unsafe {
-                            match (m, n, k) {
-                                (2, 1, 3) => t.sum_avx512::<2, 1, 3>(rows.clone(), nb, acc),
-                                (1, 1, 3) => t.sum_avx512::<1, 1, 3>(rows.clone(), nb, acc),
-                                (1..=4, 1..=4, 1) => {
-                                    with_const!(m, M => with_const!(n, N => t.sum_avx512::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1)
-                                }
-                                _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
-                            }
-                        }
-                        continue;
-                    }
-                    #[cfg(target_arch = "x86_64")]
-                    if isa == Isa::Avx2 {
+                        Isa::Avx512 => unsafe { blocks!(sum_avx512) },
                         // SAFETY: AVX2 and FMA are available (detected).
-                        unsafe {
-                            match (m, n, k) {
-                                (2, 1, 3) => t.sum_avx2::<2, 1, 3>(rows.clone(), nb, acc),
-                                (1, 1, 3) => t.sum_avx2::<1, 1, 3>(rows.clone(), nb, acc),
-                                (1..=4, 1..=4, 1) => {
-                                    with_const!(m, M => with_const!(n, N => t.sum_avx2::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1)
-                                }
-                                _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
-                            }
-                        }
-                        continue;
+                        Isa::Avx2 => unsafe { blocks!(sum_avx2) },
+                        Isa::Scalar => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
                     }
+                    #[cfg(not(target_arch = "x86_64"))]
                     t.sum_scalar(m, n, k, nb, rows.clone(), acc);
                 }
             }
