@@ -20,6 +20,10 @@ fn main() {
     println!("cargo::rerun-if-changed={SHIM_DIR}/oiio_shim.h");
     println!("cargo::rerun-if-changed={SHIM_DIR}/oiio_shim.cpp");
     println!("cargo::rerun-if-changed=build.rs");
+    // The C ABI's major version: hosts link against libkpcn.so.0 (scripts/install.sh makes
+    // the links), so a future incompatible libkpcn.so.1 can sit beside it.
+    let major = env::var("CARGO_PKG_VERSION_MAJOR").unwrap_or_else(|_| "0".into());
+    println!("cargo::rustc-cdylib-link-arg=-Wl,-soname,libkpcn.so.{major}");
 
     // Probe without emitting link flags yet: the shim's static library must come
     // before OpenImageIO on the link line.

@@ -3,8 +3,17 @@
 # missing and touches nothing (not even apt's lists) when everything is present.
 set -euo pipefail
 
-# fonts-dejavu-core: the text of training and study plots.
-packages=(libopenimageio-dev libclang-dev pkg-config g++ fonts-dejavu-core)
+# fonts-dejavu-core: the text of training and study plots. gcc/g++ (with binutils and the
+# sanitizer runtimes) build the C-ABI tests' C99 and C++17 programs.
+packages=(libopenimageio-dev libclang-dev pkg-config gcc g++ fonts-dejavu-core)
+
+# cbindgen generates include/kpcn.h (a test checks it is current). Debian's 0.24 cannot
+# parse edition 2024, so it comes from crates.io, pinned.
+cbindgen_version=0.29.4
+if ! cbindgen --version 2>/dev/null | grep -qx "cbindgen $cbindgen_version"; then
+    echo "kpcn setup: installing cbindgen $cbindgen_version (cargo install)" >&2
+    cargo install --quiet --locked --version "$cbindgen_version" cbindgen
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -200,13 +200,16 @@ fn aovs_add_up_to_the_beauty_exactly() {
 #[test]
 fn progress_can_cancel() {
     let d = Denoiser::new(tiny(Kind::Kpcn, 5), Options { tile_size: Some(4), ..Default::default() }).unwrap();
-    let calls = std::sync::atomic::AtomicUsize::new(0);
+    let calls = std::cell::Cell::new(0);
+    let caller = std::thread::current().id();
     let r = d.denoise(&frame(16, 16, 1, false), &|p| {
-        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        // Between tiles, on the caller's thread (a C host may touch its UI here).
+        assert_eq!(std::thread::current().id(), caller);
+        calls.set(calls.get() + 1);
         p.done < 3
     });
     assert!(matches!(r, Err(kpcn::denoise::DenoiseError::Cancelled)));
-    assert_eq!(calls.into_inner(), 3);
+    assert_eq!(calls.get(), 3);
 }
 
 /// Golden image: a 48×32 crop of the Cycles example through the `small` preset (Xavier seed

@@ -2,11 +2,13 @@
 
 mod util;
 
+mod capi;
 mod cli;
 mod denoise;
 mod eval;
 mod io_errors;
 mod io_roundtrip;
 mod layout_files;
+mod plugins;
 mod sim;
 mod train;

@@ -110,7 +110,7 @@ impl FileJob {
         denoiser: &Denoiser,
         output: &Path,
         opts: &FileOptions,
-        progress: &(dyn Fn(Progress) -> bool + Sync),
+        progress: &dyn Fn(Progress) -> bool,
     ) -> Result<(), FileError> {
         let (w, h) = self.size();
         let path = self.reader.header().display_path();

@@ -119,12 +119,9 @@ impl Denoiser {
             .next_multiple_of(arch.alignment())
     }
 
-    /// Denoises one frame. `progress` is called after every tile; returning `false` cancels.
-    pub fn denoise(
-        &self,
-        inputs: &KpcnInputs,
-        progress: &(dyn Fn(Progress) -> bool + Sync),
-    ) -> Result<Denoised, DenoiseError> {
+    /// Denoises one frame. `progress` is called after every tile, on the calling thread;
+    /// returning `false` cancels.
+    pub fn denoise(&self, inputs: &KpcnInputs, progress: &dyn Fn(Progress) -> bool) -> Result<Denoised, DenoiseError> {
         if inputs.width == 0 || inputs.height == 0 {
             return Err(DenoiseError::Empty);
         }
@@ -144,7 +141,7 @@ impl Denoiser {
     pub fn denoise_features(
         &self,
         f: &Features,
-        progress: &(dyn Fn(Progress) -> bool + Sync),
+        progress: &dyn Fn(Progress) -> bool,
     ) -> Result<Denoised, DenoiseError> {
         self.denoise_rows(f, 0..f.height, progress)
     }
@@ -156,35 +153,36 @@ impl Denoiser {
         &self,
         f: &Features,
         rows: std::ops::Range<usize>,
-        progress: &(dyn Fn(Progress) -> bool + Sync),
+        progress: &dyn Fn(Progress) -> bool,
     ) -> Result<Denoised, DenoiseError> {
         let (w, y0) = (f.width, rows.start);
         let h = rows.end.min(f.height).saturating_sub(y0);
         if w == 0 || h == 0 {
             return Err(DenoiseError::Empty);
         }
-        self.pool.install(|| {
-            let tiles = tile::plan(w, h, self.tile_size(w, h));
-            let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
-            let mut s_hat = d_hat.clone();
-            for (i, t) in tiles.iter().enumerate() {
-                let t_frame = Tile { y: t.y + y0, ..*t };
-                let d = self.branch(f, Branch::Diffuse, &t_frame)?;
-                let s = self.branch(f, Branch::Specular, &t_frame)?;
-                for c in 0..3 {
-                    for y in 0..t.h {
-                        let at = (t.y + y) * w + t.x;
-                        d_hat[c][at..at + t.w].copy_from_slice(&d[c][y * t.w..(y + 1) * t.w]);
-                        s_hat[c][at..at + t.w].copy_from_slice(&s[c][y * t.w..(y + 1) * t.w]);
-                    }
-                }
-                if !progress(Progress { done: i + 1, total: tiles.len() }) {
-                    return Err(DenoiseError::Cancelled);
+        // The tile loop runs on the caller's thread, so `progress` does too (a C host's
+        // callback may touch its UI); each tile's work runs in the pool.
+        let tiles = tile::plan(w, h, self.tile_size(w, h));
+        let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
+        let mut s_hat = d_hat.clone();
+        for (i, t) in tiles.iter().enumerate() {
+            let t_frame = Tile { y: t.y + y0, ..*t };
+            let (d, s) = self.pool.install(|| -> Result<_, DenoiseError> {
+                Ok((self.branch(f, Branch::Diffuse, &t_frame)?, self.branch(f, Branch::Specular, &t_frame)?))
+            })?;
+            for c in 0..3 {
+                for y in 0..t.h {
+                    let at = (t.y + y) * w + t.x;
+                    d_hat[c][at..at + t.w].copy_from_slice(&d[c][y * t.w..(y + 1) * t.w]);
+                    s_hat[c][at..at + t.w].copy_from_slice(&s[c][y * t.w..(y + 1) * t.w]);
                 }
             }
-            let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
-            Ok(recompose(&albedo, &d_hat, &s_hat, w, h))
-        })
+            if !progress(Progress { done: i + 1, total: tiles.len() }) {
+                return Err(DenoiseError::Cancelled);
+            }
+        }
+        let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
+        Ok(recompose(&albedo, &d_hat, &s_hat, w, h))
     }
 
     /// Context rows (or columns) a pixel's result depends on beyond the pixel itself:
@@ -215,7 +213,8 @@ impl Denoiser {
             Kind::Kpcn => {
                 let (nw, nh) = (t.w + 2 * rk as usize, t.h + 2 * rk as usize);
                 let colour = f.colour(b);
-                let region = f.region(&crate::eval::rgb(colour), t.x as isize - rk, t.y as isize - rk, nw, nh);
+                let region =
+                    f.region(&colour.each_ref().map(Vec::as_slice), t.x as isize - rk, t.y as isize - rk, nw, nh);
                 let m = nw * nh;
                 let noisy = [0, 1, 2].map(|c| region[c * m..(c + 1) * m].to_vec());
                 kernel::apply(&out, &noisy, arch.kernel_size, t.w, t.h)
@@ -234,7 +233,7 @@ impl Denoiser {
         let (rw, rh) = ((t.w + 2 * r).next_multiple_of(align), (t.h + 2 * r).next_multiple_of(align));
         let (x0, y0) = (t.x as isize - r as isize, t.y as isize - r as isize);
         let input = f.branch_input(b, x0, y0, rw, rh);
-        let noisy = f.region(&crate::eval::rgb(f.colour(b)), x0, y0, rw, rh);
+        let noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y0, rw, rh);
         let [diffuse, specular] = self.pyramid.as_ref().expect("built in new for a multi-scale model");
         let weights = match b {
             Branch::Diffuse => diffuse,

@@ -111,6 +111,12 @@ pub enum IoError {
         /// What is wrong.
         msg: String,
     },
+    /// In-memory images the network needs were not given.
+    #[error("<memory>: missing input {} {} — set them (the network needs diffuse, albedo, normal, depth, and color or specular)", if missing.len() == 1 { "image" } else { "images" }, missing.join(", "))]
+    MissingImages {
+        /// The images' names.
+        missing: Vec<String>,
+    },
     /// An unknown compression name.
     #[error("unknown EXR compression `{0}` — use one of none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab")]
     Compression(String),

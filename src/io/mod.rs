@@ -12,5 +12,5 @@ mod write;
 pub use error::IoError;
 pub use frame::{FrameBuffers, FrameReader, Plane, Window};
 pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
-pub use view::{ImageView, InputViews};
+pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
 pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};

@@ -2,7 +2,8 @@
 //! OIDN-style API: each image set by name with pixel and row strides).
 
 use super::error::IoError;
-use super::layout::{KpcnInputs, spatial_variance};
+use super::layout::{KpcnInputs, Layout, Mapping, Quantity};
+use super::{FrameBuffers, SampleFormat};
 
 /// Sample `(x, y, c)` is `data[y * row_stride + x * pixel_stride + c]` (strides in floats).
 #[derive(Debug, Clone, Copy)]
@@ -52,14 +53,10 @@ impl<'a> ImageView<'a> {
         }
         out
     }
-
-    fn rgb(&self) -> [Vec<f32>; 3] {
-        [self.plane(0), self.plane(1), self.plane(2)]
-    }
 }
 
 /// The images a host hands to the denoiser. Variances are of the pixel mean; absent ones
-/// are estimated spatially (3×3 local variance).
+/// are estimated as for a file without them.
 #[derive(Debug, Clone, Copy)]
 pub struct InputViews<'a> {
     /// Beauty RGB (derived as diffuse + specular when absent).
@@ -86,57 +83,134 @@ pub struct InputViews<'a> {
     pub depth_variance: Option<ImageView<'a>>,
 }
 
+/// The images a host may hand over by name: the means, then the variances (of the pixel
+/// mean; 1 channel, or 3 averaged). Names follow the native layout's layers (SPEC §3).
+pub const IMAGE_NAMES: [&str; 12] = [
+    "color",
+    "diffuse",
+    "specular",
+    "albedo",
+    "normal",
+    "depth",
+    "colorVariance",
+    "diffuseVariance",
+    "specularVariance",
+    "albedoVariance",
+    "normalVariance",
+    "depthVariance",
+];
+
+/// In-memory images by name, turned into the network's inputs by the same mapping as a file
+/// in the native layout: `color` or `specular` is derived from the other two, and absent
+/// variances are estimated exactly as for a file without them.
+#[derive(Debug, Clone)]
+pub struct NamedImages {
+    frame: FrameBuffers,
+}
+
+impl NamedImages {
+    /// No images yet, for a `width`×`height` frame.
+    pub fn new(width: usize, height: usize) -> Self {
+        let mut frame = FrameBuffers::new(width, height);
+        frame.source = Some("<memory>".into());
+        NamedImages { frame }
+    }
+
+    /// Channels an image called `name` must have: 3 for colours, normal; 1 for depth; 1 or 3
+    /// for a variance. `None` for an unknown name.
+    pub fn channels_of(name: &str) -> Option<&'static [usize]> {
+        match name {
+            _ if name.ends_with("Variance") && IMAGE_NAMES.contains(&name) => Some(&[1, 3]),
+            "depth" => Some(&[1]),
+            _ if IMAGE_NAMES.contains(&name) => Some(&[3]),
+            _ => None,
+        }
+    }
+
+    /// Sets image `name` from packed planes (one per channel), replacing an earlier one.
+    pub fn insert(&mut self, name: &str, planes: Vec<Vec<f32>>) -> Result<(), IoError> {
+        let bad = |msg: String| IoError::BadImage { name: name.into(), msg };
+        let Some(allowed) = Self::channels_of(name) else {
+            return Err(bad(format!("is not an input (use one of {})", IMAGE_NAMES.join(", "))));
+        };
+        if !allowed.contains(&planes.len()) {
+            return Err(bad(format!("has {} channels, needs {}", planes.len(), allowed[0])));
+        }
+        let (w, h) = (self.frame.width(), self.frame.height());
+        if let Some(p) = planes.iter().find(|p| p.len() != w * h) {
+            return Err(bad(format!("has {} pixels, the frame is {w}x{h}", p.len())));
+        }
+        self.remove(name);
+        for (channel, data) in Self::channel_names(name, planes.len()).iter().zip(planes) {
+            self.frame.insert(channel, SampleFormat::Float, data)?;
+        }
+        Ok(())
+    }
+
+    /// Forgets image `name`; whether it was set.
+    pub fn remove(&mut self, name: &str) -> bool {
+        let mut any = false;
+        for k in [1, 3] {
+            for c in Self::channel_names(name, k) {
+                any |= self.frame.remove(&c).is_some();
+            }
+        }
+        any
+    }
+
+    /// The native-layout channels of image `name` with `k` channels.
+    fn channel_names(name: &str, k: usize) -> Vec<String> {
+        let suffixes: &[&str] = if k == 1 { &["Z"] } else { &["R", "G", "B"] };
+        suffixes.iter().map(|s| if name == "color" { s.to_string() } else { format!("{name}.{s}") }).collect()
+    }
+
+    /// Width and height.
+    pub fn size(&self) -> (usize, usize) {
+        (self.frame.width(), self.frame.height())
+    }
+
+    /// The network's inputs; an error names every missing image.
+    pub fn inputs(&self) -> Result<KpcnInputs, IoError> {
+        let mapping = Mapping::new(self.frame.channel_names(), Some(Layout::Native));
+        let mut missing: Vec<&str> = Vec::new();
+        for q in Quantity::ALL.into_iter().filter(|q| q.required()) {
+            if mapping.entry_for(q).mean_status() == "missing" {
+                missing.push(q.name());
+            }
+        }
+        // With colour and specular both absent, both are reported; one of them suffices.
+        if !missing.is_empty() {
+            return Err(IoError::MissingImages { missing: missing.iter().map(|m| m.to_string()).collect() });
+        }
+        mapping.extract(&self.frame)
+    }
+}
+
 impl KpcnInputs {
     /// Builds the network's inputs from in-memory images, checking sizes and strides.
     pub fn from_views(v: &InputViews) -> Result<KpcnInputs, IoError> {
         let (w, h) = (v.diffuse.width, v.diffuse.height);
-        let rgb = |name: &str, view: &ImageView| view.check(name, w, h, 3).map(|_| view.rgb());
-        let diffuse = rgb("diffuse", &v.diffuse)?;
-        let albedo = rgb("albedo", &v.albedo)?;
-        let normal = rgb("normal", &v.normal)?;
-        v.depth.check("depth", w, h, 1)?;
-        let depth = v.depth.plane(0);
-        let zip = |a: &[Vec<f32>; 3], b: &[Vec<f32>; 3], f: fn(f32, f32) -> f32| -> [Vec<f32>; 3] {
-            std::array::from_fn(|c| a[c].iter().zip(&b[c]).map(|(x, y)| f(*x, *y)).collect())
-        };
-        let (color, specular) = match (&v.color, &v.specular) {
-            (Some(c), Some(s)) => (rgb("color", c)?, rgb("specular", s)?),
-            (Some(c), None) => {
-                let color = rgb("color", c)?;
-                let specular = zip(&color, &diffuse, |c, d| c - d);
-                (color, specular)
-            }
-            (None, Some(s)) => {
-                let specular = rgb("specular", s)?;
-                (zip(&diffuse, &specular, |d, s| d + s), specular)
-            }
-            (None, None) => {
-                return Err(IoError::BadImage { name: "specular".into(), msg: "give specular or color".into() });
-            }
-        };
-        let variance = |name: &str, view: &Option<ImageView>, mean: &[Vec<f32>]| -> Result<Vec<f32>, IoError> {
-            match view {
-                Some(view) => view.check(name, w, h, 1).map(|_| view.plane(0)),
-                None => Ok(spatial_variance(mean, w, h)),
-            }
-        };
-        Ok(KpcnInputs {
-            width: w,
-            height: h,
-            color_variance: spatial_variance(&color, w, h),
-            diffuse_variance: variance("diffuse_variance", &v.diffuse_variance, &diffuse)?,
-            specular_variance: variance("specular_variance", &v.specular_variance, &specular)?,
-            albedo_variance: variance("albedo_variance", &v.albedo_variance, &albedo)?,
-            normal_variance: variance("normal_variance", &v.normal_variance, &normal)?,
-            depth_variance: variance("depth_variance", &v.depth_variance, std::slice::from_ref(&depth))?,
-            color,
-            diffuse,
-            specular,
-            albedo,
-            normal,
-            depth,
-            visibility: None,
-        })
+        let mut images = NamedImages::new(w, h);
+        let views = [
+            ("color", v.color),
+            ("diffuse", Some(v.diffuse)),
+            ("specular", v.specular),
+            ("albedo", Some(v.albedo)),
+            ("normal", Some(v.normal)),
+            ("depth", Some(v.depth)),
+            ("diffuseVariance", v.diffuse_variance),
+            ("specularVariance", v.specular_variance),
+            ("albedoVariance", v.albedo_variance),
+            ("normalVariance", v.normal_variance),
+            ("depthVariance", v.depth_variance),
+        ];
+        for (name, view) in views {
+            let Some(view) = view else { continue };
+            let k = NamedImages::channels_of(name).map_or(1, |c| c[0]);
+            view.check(name, w, h, k)?;
+            images.insert(name, (0..k).map(|c| view.plane(c)).collect())?;
+        }
+        images.inputs()
     }
 }
 

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Rebuilds a multi-scale KPCN like models/default.safetensors from nothing: simulator data,
+# then one training run from Xavier initialisation. Rerun it after an interruption: the
+# data step is skipped when its manifest exists, and training resumes bit-exactly from the
+# last checkpoint in WORK/run (`--resume`).
+#
+#   scripts/train-default.sh [WORK]        # WORK defaults to ./train-default
+#
+# Runs at low priority (nice 19) so builds and tests beside it keep their cores.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+work=${1:-train-default}
+steps=${KPCN_STEPS:-8000}
+phase2=${KPCN_PHASE2_STEPS:-500}
+mkdir -p "$work"
+
+cargo build --release --locked --quiet
+kpcn=target/release/kpcn
+
+if [ ! -f "$work/data/manifest.csv" ]; then
+    rm -rf "$work/data.partial"
+    nice -n 19 "$kpcn" dataset --count 6 --spp 4,16,64 --reference-spp 512 --resolution 192x108 \
+        -o "$work/data.partial" -q
+    mv "$work/data.partial" "$work/data"
+fi
+
+resume=()
+if [ -f "$work/run/checkpoint.safetensors" ]; then
+    resume=(--resume)
+fi
+nice -n 19 "$kpcn" train --data "$work/data" -o "$work/run" --preset multiscale \
+    --steps "$steps" --phase2-steps "$phase2" --batch 6 --patch 64 --lr 1e-3 --lr-phase2 1e-4 \
+    --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
+echo "model: $work/run/model.safetensors (log: $work/run/log.csv)"
