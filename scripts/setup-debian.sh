@@ -5,8 +5,9 @@ set -euo pipefail
 
 # fonts-dejavu-core: the text of training and study plots. gcc/g++ (with binutils and the
 # sanitizer runtimes) build the C-ABI tests' C99 and C++17 programs. The plugin tests run
-# the real hosts: oiiotool/idiff (openimageio-tools) and Blender 3.4 (blender), headless.
-packages=(libopenimageio-dev libclang-dev pkg-config gcc g++ fonts-dejavu-core openimageio-tools blender)
+# the real hosts: oiiotool/idiff (openimageio-tools) and Blender 3.4 (blender), headless, and
+# an OpenFX host built on HostSupport, which parses plugin caches with expat (libexpat1-dev).
+packages=(libopenimageio-dev libclang-dev pkg-config gcc g++ fonts-dejavu-core openimageio-tools blender libexpat1-dev)
 
 # cbindgen generates include/kpcn.h (a test checks it is current). Debian's 0.24 cannot
 # parse edition 2024, so it comes from crates.io, pinned.

@@ -19,7 +19,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             if e.downcast_ref::<kpcn::cli::Reported>().is_none() {
-                eprintln!("kpcn: error: {e:#}");
+                eprintln!("kpcn: error: {}", kpcn::cli::describe_error(&e));
             }
             ExitCode::FAILURE
         }

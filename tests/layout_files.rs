@@ -1,7 +1,7 @@
 //! Renderer layouts map real files' channels onto the KPCN inputs.
 
 use crate::util::{Rng, cycles_dev, native_frame, write};
-use kpcn::io::layout::{Layout, Mapping, Quantity};
+use kpcn::io::layout::{Layout, Mapping, Quantity, VarianceStatus};
 use kpcn::io::{FrameBuffers, IoError, SampleFormat};
 
 /// A Cycles multilayer frame with the given pass spelling (`DiffDir` or `Diffuse Direct`).
@@ -62,7 +62,7 @@ fn cycles_passes_map_onto_the_kpcn_inputs() {
         assert_eq!(k.depth[0], 0.0, "a 1e10 miss becomes 0");
         assert_eq!(k.depth[1], pass("Depth", "Depth", "Z")[1]);
         assert!(k.visibility.is_none());
-        assert_eq!(m.entry_for(Quantity::Diffuse).variance_status(), "estimated");
+        assert_eq!(m.entry_for(Quantity::Diffuse).variance_status(), VarianceStatus::Estimated);
         assert!(k.diffuse_variance.iter().all(|v| v.is_finite() && *v >= 0.0));
     }
 }
@@ -73,8 +73,8 @@ fn native_variances_come_from_the_file_or_the_half_buffer() {
     let path = write(&native_frame(6, 4, 12, &["diffuseVariance"]), dir.path(), "n.exr");
     let fb = FrameBuffers::read(&path).unwrap();
     let m = Mapping::for_frame(&fb, None);
-    assert_eq!(m.entry_for(Quantity::Specular).variance_status(), "present");
-    assert_eq!(m.entry_for(Quantity::Diffuse).variance_status(), "estimated");
+    assert_eq!(m.entry_for(Quantity::Specular).variance_status(), VarianceStatus::Present);
+    assert_eq!(m.entry_for(Quantity::Diffuse).variance_status(), VarianceStatus::Estimated);
     let k = m.extract(&fb).unwrap();
     assert_eq!(k.specular_variance, fb.channel("specularVariance.Z").unwrap());
     // Centre pixel: 3×3 box of the channel-averaged (mean − half)².
@@ -127,7 +127,7 @@ fn the_cycles_dev_set_has_every_input() {
         assert!(m.missing_required().is_empty(), "{name}: {:?}", m.missing_required());
         if name.ends_with("spp.exr") {
             for q in Quantity::ALL.iter().filter(|q| q.required()) {
-                assert_eq!(m.entry_for(*q).variance_status(), "present", "{name} {q:?}");
+                assert_eq!(m.entry_for(*q).variance_status(), VarianceStatus::Present, "{name} {q:?}");
             }
         }
         let k = m.extract(&fb).unwrap();

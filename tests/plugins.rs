@@ -87,3 +87,96 @@ fn blender_addon_denoises_renders_in_blender() {
         }
     }
 }
+
+/// Writes `planes` (RGB, or 1 for depth) as a raw float RGBA image, rows bottom-up as OFX
+/// lays them out.
+fn write_ofx_rgba(path: &Path, planes: &[&[f32]], w: usize, h: usize) {
+    let mut out = Vec::with_capacity(w * h * 16);
+    for y in (0..h).rev() {
+        for x in 0..w {
+            for c in 0..4 {
+                let v = planes.get(c).map_or(if c == 3 { 1.0 } else { 0.0 }, |p| p[y * w + x]);
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, out).unwrap();
+}
+
+/// `kpcn.ofx` in a headless OpenFX host built on the OFX Association's HostSupport
+/// (openfx-sys's sources): the general context with every optional clip, rows bottom-up,
+/// gives exactly `kpcn denoise` on the same passes; the host's abort check cancels, leaving
+/// the output untouched.
+#[test]
+fn openfx_plugin_renders_in_a_hostsupport_host() {
+    let dir = tempfile::tempdir().unwrap();
+    let pc = prefix().join("lib/pkgconfig");
+    run(Command::new(root().join("plugins/openfx/build.sh"))
+        .arg(dir.path().join("plugins"))
+        .env("PKG_CONFIG_PATH", &pc));
+    let host = dir.path().join("host");
+    run(Command::new(root().join("tests/openfx/build-host.sh")).arg(&host));
+
+    // The example's passes without its variances (a compositor has none), as clips and as
+    // a native-layout EXR for the CLI.
+    let fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
+    let (w, h) = (fb.width(), fb.height());
+    let rgb = |layer: &str| -> Vec<String> {
+        ["R", "G", "B"].iter().map(|c| if layer.is_empty() { c.to_string() } else { format!("{layer}.{c}") }).collect()
+    };
+    let images = dir.path().join("images");
+    std::fs::create_dir_all(&images).unwrap();
+    let mut keep: Vec<String> = Vec::new();
+    for (clip, names) in [
+        ("Source", rgb("")),
+        ("Diffuse", rgb("diffuse")),
+        ("Albedo", rgb("albedo")),
+        ("Normal", rgb("normal")),
+        ("Depth", vec!["depth.Z".to_string()]),
+    ] {
+        let planes: Vec<&[f32]> = names.iter().map(|n| fb.channel(n).unwrap()).collect();
+        write_ofx_rgba(&images.join(format!("{clip}.f32")), &planes, w, h);
+        keep.extend(names);
+    }
+    let passes = dir.path().join("passes.exr");
+    let keep: Vec<&str> = keep.iter().map(String::as_str).collect();
+    fb.select(&keep).unwrap().write(&passes, &Default::default()).unwrap();
+
+    let ofx_host = |extra: &[&str]| {
+        let out = Command::new(host.join("ofx_host"))
+            .args([w.to_string(), h.to_string()])
+            .arg(&images)
+            .args(extra)
+            .env("OFX_PLUGIN_PATH", dir.path().join("plugins"))
+            .output()
+            .expect("ofx_host runs");
+        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert!(out.status.success(), "{text}");
+        let pixels: Vec<f32> = std::fs::read(images.join("Output.f32"))
+            .unwrap()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        (text, pixels)
+    };
+    let (text, pixels) = ofx_host(&[]);
+    assert!(text.contains("render: 0") && text.contains("abort checks: 1"), "{text}");
+
+    let cli = dir.path().join("cli.exr");
+    run(Command::new(env!("CARGO_BIN_EXE_kpcn")).args(["denoise", "--separate", "-q", "-o"]).arg(&cli).arg(&passes));
+    let cli = FrameBuffers::read(&cli).unwrap();
+    for (c, name) in ["denoised.R", "denoised.G", "denoised.B"].iter().enumerate() {
+        let want = cli.channel(name).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let got = pixels[((h - 1 - y) * w + x) * 4 + c];
+                assert_eq!(got.to_bits(), want[y * w + x].to_bits(), "{name} at ({x}, {y})");
+            }
+        }
+    }
+    assert!(pixels.chunks_exact(4).all(|p| p[3] == 1.0), "alpha comes from Source");
+
+    let (text, pixels) = ofx_host(&["abort"]);
+    assert!(text.contains("render: 0"), "{text}");
+    assert!(pixels.iter().all(|&v| v == 0.0), "an aborted render leaves the output untouched");
+}

@@ -120,7 +120,7 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         match denoise_file(&denoiser, args, input, output, &step, &mut warned, &bar) {
             Ok(()) => {}
             Err(e) if args.skip_bad_frames => {
-                bar.suspend(|| eprintln!("kpcn: error: {e:#} (skipped)"));
+                bar.suspend(|| eprintln!("kpcn: error: {} (skipped)", super::describe_error(&e)));
                 failed.push(input.clone());
             }
             Err(e) => {

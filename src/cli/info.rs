@@ -1,6 +1,6 @@
 //! `kpcn info`: what a file holds and what the denoiser can use.
 
-use crate::io::layout::{Layout, Mapping};
+use crate::io::layout::{Layout, Mapping, MeanStatus};
 use crate::io::{FrameBuffers, IoError, Plane};
 use clap::Args;
 use std::path::PathBuf;
@@ -96,11 +96,11 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
     for e in &mapping.entries {
         let q = e.quantity;
         let status = match (e.mean_status(), q.required()) {
-            ("missing", false) => "absent (optional: not a network input)".to_string(),
+            (MeanStatus::Missing, false) => "absent (optional: not a network input)".to_string(),
             (s, _) => format!("{s:<8} {}", e.mean),
         };
         println!("    {:<11} {status}", q.name());
-        if e.mean_status() != "missing" {
+        if e.mean_status() != MeanStatus::Missing {
             println!("    {:<11} variance {:<9} {}", "", e.variance_status(), e.variance_description());
         }
     }

@@ -126,6 +126,27 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[derive(Debug)]
 pub struct Reported(pub usize);
 
+/// An error's message for the terminal: the library's text (which names no flags), plus
+/// the command-line flag behind it where there is one.
+pub fn describe_error(e: &anyhow::Error) -> String {
+    use crate::io::IoError;
+    // Transparent wrappers hide the I/O error from the source chain: look inside them.
+    fn io<'a>(c: &'a (dyn std::error::Error + 'static)) -> Option<&'a IoError> {
+        c.downcast_ref::<IoError>()
+            .or_else(|| match c.downcast_ref::<crate::denoise::FileError>() {
+                Some(crate::denoise::FileError::Io(io)) => Some(io),
+                _ => None,
+            })
+            .or_else(|| match c.downcast_ref::<crate::sim::SimError>() {
+                Some(crate::sim::SimError::Io(io)) => Some(io),
+                _ => None,
+            })
+    }
+    let refused = e.chain().any(|c| matches!(io(c), Some(IoError::Exists { .. })));
+    let hint = if refused { " (--no-clobber was given; drop it to replace the file)" } else { "" };
+    format!("{e:#}{hint}")
+}
+
 impl std::fmt::Display for Reported {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{} file(s) failed", self.0)

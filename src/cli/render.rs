@@ -4,6 +4,7 @@ use crate::io::WriteOptions;
 use crate::sim::families::{FAMILIES, generate};
 use crate::sim::scene::SceneDesc;
 use crate::sim::{RenderOptions, Written, render_to_dir};
+use crate::train::records::{ManifestRow, write_manifest};
 use anyhow::{Context, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -211,7 +212,7 @@ pub fn run_dataset(args: &DatasetArgs) -> anyhow::Result<()> {
         args.families.iter().map(String::as_str).collect()
     };
     let manifest_path = args.output.join("manifest.csv");
-    let mut rows = vec!["scene,family,seed,sample_seed,spp,file,reference,render_seconds".to_string()];
+    let mut rows: Vec<ManifestRow> = Vec::new();
     let t = std::time::Instant::now();
     for f in &families {
         for seed in args.first_seed..args.first_seed + args.count {
@@ -221,25 +222,25 @@ pub fn run_dataset(args: &DatasetArgs) -> anyhow::Result<()> {
             let rel = |p: &Path| p.strip_prefix(&args.output).unwrap_or(p).display().to_string();
             let reference = w.reference.as_deref().map(rel).unwrap_or_default();
             for (spp, p) in &w.noisy {
-                rows.push(format!(
-                    "{},{f},{seed},{},{spp},{},{reference},{:.3}",
-                    desc.name,
-                    args.sampling.sample_seed,
-                    rel(p),
-                    w.noisy_seconds
-                ));
+                rows.push(ManifestRow {
+                    scene: desc.name.clone(),
+                    family: f.to_string(),
+                    seed,
+                    sample_seed: args.sampling.sample_seed,
+                    spp: *spp,
+                    file: rel(p),
+                    reference: reference.clone(),
+                    render_seconds: w.noisy_seconds,
+                });
             }
-            // Rewritten after every scene, atomically, so an interrupted run keeps a valid manifest.
-            let tmp = args.output.join(".manifest.csv.tmp");
-            std::fs::write(&tmp, rows.join("\n") + "\n").with_context(|| format!("{}: cannot write", tmp.display()))?;
-            std::fs::rename(&tmp, &manifest_path)
-                .with_context(|| format!("{}: cannot write", manifest_path.display()))?;
+            // Rewritten after every scene, so an interrupted run keeps a valid manifest.
+            write_manifest(&manifest_path, &rows)?;
         }
     }
     println!(
         "{} scenes, {} frames in {:.1} s; manifest {}",
         families.len() as u64 * args.count,
-        rows.len() - 1,
+        rows.len(),
         t.elapsed().as_secs_f64(),
         manifest_path.display()
     );

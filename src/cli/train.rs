@@ -4,9 +4,9 @@ use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
 use crate::model::Model;
-use crate::train::curves;
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
+use crate::train::{curves, records};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -94,14 +94,6 @@ pub enum Patches {
     Uniform,
 }
 
-fn fmt(v: f32) -> String {
-    if v.is_nan() { String::new() } else { format!("{v:.6}") }
-}
-
-/// Columns of `log.csv`; new columns go at the end so older readers keep working.
-const LOG_HEADER: &str =
-    "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second,validation_median_relmse";
-
 /// Redraws DIR/training.png from DIR/log.csv. A plot is a convenience: failing to draw
 /// one (no font) is said once and never stops training.
 fn plot(dir: &Path, bar: &ProgressBar) {
@@ -140,25 +132,17 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         let t = Trainer::resume(&checkpoint, &data, opts.clone())
             .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
         // Steps logged after the checkpoint by an interrupted run are redone: drop them.
-        let log = std::fs::read_to_string(&log_path).unwrap_or_default();
-        // The header is rewritten: a log from an older kpcn gains the newer columns' names.
-        let kept: Vec<&str> = std::iter::once(LOG_HEADER)
-            .chain(
-                log.lines()
-                    .skip(1)
-                    .filter(|l| l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s <= t.step)),
-            )
-            .collect();
-        std::fs::write(&log_path, kept.join("\n") + "\n")
-            .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        // Rewritten in the current format: a log from an older kpcn gains the newer columns.
+        let mut rows = records::read_log(&std::fs::read_to_string(&log_path).unwrap_or_default());
+        rows.retain(|r| r.step <= t.step);
+        records::write_log(&log_path, &rows)?;
         t
     } else {
         let model = match &args.init {
             Some(p) => Model::load(p)?,
             None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
-        std::fs::write(&log_path, format!("{LOG_HEADER}\n"))
-            .with_context(|| format!("{}: cannot write", log_path.display()))?;
+        records::write_log(&log_path, &[])?;
         Trainer::new(&model, &data, opts.clone())?
     };
     let mut log = std::fs::OpenOptions::new()
@@ -215,18 +199,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 row.phase, row.patches_per_second
             ));
             bar.set_position(row.step);
-            writeln!(
-                log,
-                "{},{},{},{},{},{},{:.3},{}",
-                row.step,
-                row.phase,
-                fmt(row.loss_diffuse),
-                fmt(row.loss_specular),
-                fmt(row.loss_combined),
-                row.validation_relmse.map(|v| v.to_string()).unwrap_or_default(),
-                row.patches_per_second,
-                row.validation_median_relmse.map(|v| v.to_string()).unwrap_or_default()
-            )?;
+            writeln!(log, "{}", row.to_line())?;
             if row.step.is_multiple_of(opts.checkpoint_every) {
                 trainer.save(&checkpoint)?;
                 plot(&args.output, &bar);

@@ -57,8 +57,8 @@ pub enum IoError {
         /// What failed.
         reason: String,
     },
-    /// `--no-clobber` and the target exists.
-    #[error("{}: already exists and --no-clobber was given — remove it, choose another name, or drop --no-clobber", path.display())]
+    /// The target exists and replacing it was refused.
+    #[error("{}: already exists and overwriting was refused — remove it or choose another name", path.display())]
     Exists {
         /// The target file.
         path: PathBuf,
@@ -84,7 +84,7 @@ pub enum IoError {
         height: usize,
     },
     /// A channel asked for by name is not in the frame.
-    #[error("{}: no channel `{channel}` in the frame — check the name (`kpcn info` lists the channels)", path.display())]
+    #[error("{}: no channel `{channel}` in the frame — check the name against the file's channel list", path.display())]
     NoSuchChannel {
         /// The file.
         path: PathBuf,

@@ -1,6 +1,7 @@
 //! Frames in and out: OpenImageIO through our own C++ shim, the layered-EXR contract
-//! (`layout`), and atomic writes.
+//! (`layout`), and atomic writes (`atomic`, the one home of temporary-file-then-rename).
 
+pub mod atomic;
 mod error;
 mod ffi;
 mod frame;

@@ -2,7 +2,7 @@
 //! OIDN-style API: each image set by name with pixel and row strides).
 
 use super::error::IoError;
-use super::layout::{KpcnInputs, Layout, Mapping, Quantity};
+use super::layout::{KpcnInputs, Layout, Mapping, MeanStatus, Quantity};
 use super::{FrameBuffers, SampleFormat};
 
 /// Sample `(x, y, c)` is `data[y * row_stride + x * pixel_stride + c]` (strides in floats).
@@ -174,7 +174,7 @@ impl NamedImages {
         let mapping = Mapping::new(self.frame.channel_names(), Some(Layout::Native));
         let mut missing: Vec<&str> = Vec::new();
         for q in Quantity::ALL.into_iter().filter(|q| q.required()) {
-            if mapping.entry_for(q).mean_status() == "missing" {
+            if mapping.entry_for(q).mean_status() == MeanStatus::Missing {
                 missing.push(q.name());
             }
         }

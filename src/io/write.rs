@@ -1,12 +1,11 @@
-//! Atomic EXR writing: a temporary file in the target folder, renamed into place, so a
-//! failed or interrupted run never leaves a truncated output.
+//! EXR writing, atomic through [`AtomicFile`]: a failed or interrupted run never leaves a
+//! truncated output.
 
+use super::atomic::AtomicFile;
 use super::error::IoError;
 use super::frame::{FrameBuffers, Plane};
 use super::oiio::{Attribute, Output, OutputSpec, SampleFormat, SubimageInfo};
-use std::fs;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// EXR compressions OpenImageIO accepts.
 pub const COMPRESSIONS: &[&str] = &["none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"];
@@ -28,25 +27,6 @@ fn is_file_structure(name: &str) -> bool {
     matches!(name, "compression" | "oiio:subimages" | "oiio:subimagename" | "name" | "type" | "version" | "chunkCount")
         || name.starts_with("openexr:")
         || name.starts_with("oiio:BitsPerSample")
-}
-
-/// Removes the temporary file unless disarmed.
-struct TempGuard(Option<PathBuf>);
-
-impl Drop for TempGuard {
-    fn drop(&mut self) {
-        if let Some(p) = self.0.take() {
-            let _ = fs::remove_file(p);
-        }
-    }
-}
-
-fn temp_path(target: &Path) -> PathBuf {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    // Ends in .exr so OpenImageIO's writer accepts it; hidden so tools ignore it.
-    target.with_file_name(format!(".{name}.kpcn-{}-{n}.tmp.exr", std::process::id()))
 }
 
 /// One part of a multi-part EXR: a name and the frame channels it holds.
@@ -103,8 +83,7 @@ impl FrameBuffers {
 pub struct FrameWriter {
     out: Option<Output>,
     path: PathBuf,
-    guard: TempGuard,
-    no_clobber: bool,
+    file: AtomicFile,
     width: usize,
     y0: i32,
     /// Channels of each part, and the part being written.
@@ -148,14 +127,13 @@ impl FrameWriter {
                 attributes: &attributes,
             })
             .collect();
-        let tmp = temp_path(path);
-        let guard = TempGuard(Some(tmp.clone()));
-        let out = Output::create(&tmp, &specs).map_err(|reason| IoError::Write { path: path.into(), reason })?;
+        let file = AtomicFile::new(path, opts.no_clobber);
+        let out =
+            Output::create(file.temp_path(), &specs).map_err(|reason| IoError::Write { path: path.into(), reason })?;
         Ok(FrameWriter {
             out: Some(out),
             path: path.into(),
-            guard,
-            no_clobber: opts.no_clobber,
+            file,
             width: header.width(),
             y0: header.window.y,
             nchannels: parts.iter().map(|(_, c)| c.len()).collect(),
@@ -208,23 +186,9 @@ impl FrameWriter {
         let path = self.path.clone();
         let write_err = |reason: String| IoError::Write { path: path.clone(), reason };
         self.out.take().expect("open until commit").close().map_err(write_err)?;
-        let tmp = self.guard.0.clone().expect("armed until commit");
-        let fs_err = |e: std::io::Error| write_err(e.to_string());
-        fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(fs_err)?;
-        if self.no_clobber {
-            // A hard link fails if the target appeared meanwhile: no race with other writers.
-            fs::hard_link(&tmp, &path).map_err(|e| match e.kind() {
-                std::io::ErrorKind::AlreadyExists => IoError::Exists { path: path.clone() },
-                _ => fs_err(e),
-            })?;
-        } else {
-            fs::rename(&tmp, &path).map_err(fs_err)?;
-            self.guard.0 = None;
-        }
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            // Make the rename durable; failure here loses nothing already written.
-            let _ = fs::File::open(dir).and_then(|d| d.sync_all());
-        }
-        Ok(())
+        self.file.commit().map_err(|e| match e.kind() {
+            std::io::ErrorKind::AlreadyExists => IoError::Exists { path: path.clone() },
+            _ => write_err(e.to_string()),
+        })
     }
 }

@@ -69,7 +69,7 @@ pub enum ModelError {
         source: std::io::Error,
     },
     /// Not a kpcn model file, or one of another layout or version.
-    #[error("{origin}: {what} — use a model written by this kpcn (`kpcn denoise --model paper|small|FILE`)")]
+    #[error("{origin}: {what} — use a model file written by this version of kpcn, or a built-in model name")]
     Format {
         /// File or preset name.
         origin: String,
@@ -431,10 +431,7 @@ impl Model {
 
 /// Writes `bytes` to `path` through a temporary file renamed into place.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
-    let tmp = path.with_extension("safetensors.tmp");
-    let io = |source| ModelError::Io { path: path.into(), source };
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    crate::io::atomic::write_atomically(path, bytes).map_err(|source| ModelError::Io { path: path.into(), source })
 }
 
 #[cfg(test)]

@@ -21,24 +21,22 @@ pub struct Log {
     pub validation_median: Vec<(f64, f64)>,
 }
 
-/// Parses a `kpcn train` log (`step,phase,loss_diffuse,loss_specular,loss_combined,
-/// validation_relmse,patches_per_second[,validation_median_relmse]`); malformed rows are
+/// A `kpcn train` log's columns (see [`super::records::LogRow`]); malformed rows are
 /// skipped.
 pub fn parse(text: &str) -> Log {
     let mut log = Log::default();
-    for line in text.lines().skip(1) {
-        let c: Vec<&str> = line.split(',').collect();
-        let Some(step) = c.first().and_then(|s| s.parse::<f64>().ok()) else { continue };
-        let num = |i: usize| c.get(i).and_then(|s| s.parse::<f64>().ok()).filter(|v| v.is_finite());
+    let finite = |v: f64| v.is_finite().then_some(v);
+    for r in super::records::read_log(text) {
+        let step = r.step as f64;
         let columns = [
-            (2, &mut log.diffuse),
-            (3, &mut log.specular),
-            (4, &mut log.combined),
-            (5, &mut log.validation),
-            (7, &mut log.validation_median),
+            (finite(r.loss_diffuse), &mut log.diffuse),
+            (finite(r.loss_specular), &mut log.specular),
+            (finite(r.loss_combined), &mut log.combined),
+            (r.validation_relmse, &mut log.validation),
+            (r.validation_median_relmse, &mut log.validation_median),
         ];
-        for (i, out) in columns {
-            if let Some(v) = num(i) {
+        for (v, out) in columns {
+            if let Some(v) = v {
                 out.push((step, v));
             }
         }

@@ -234,18 +234,10 @@ impl Dataset {
     /// from and written to `DIR/cache/` (see [`super::cache`]).
     pub fn load(dir: &Path, holdout_every: usize, cache: bool) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.csv");
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| DataError::Manifest { path: path.clone(), msg: e.to_string() })?;
-        let mut rows: Vec<(String, u32, PathBuf, PathBuf)> = Vec::new();
-        for (n, line) in text.lines().enumerate().skip(1) {
-            let c: Vec<&str> = line.split(',').collect();
-            let bad = || DataError::Manifest { path: path.clone(), msg: format!("line {}: expected 8 columns", n + 1) };
-            if c.len() < 7 {
-                return Err(bad());
-            }
-            let spp = c[4].parse().map_err(|_| bad())?;
-            rows.push((c[0].to_string(), spp, dir.join(c[5]), dir.join(c[6])));
-        }
+        let manifest =
+            super::records::read_manifest(&path).map_err(|e| DataError::Manifest { path: path.clone(), msg: e.msg })?;
+        let rows: Vec<(String, u32, PathBuf, PathBuf)> =
+            manifest.into_iter().map(|r| (r.scene, r.spp, dir.join(r.file), dir.join(r.reference))).collect();
         let mut scenes: Vec<String> = rows.iter().map(|r| r.0.clone()).collect();
         scenes.sort();
         scenes.dedup();

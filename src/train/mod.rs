@@ -9,6 +9,7 @@
 pub mod cache;
 pub mod curves;
 pub mod data;
+pub mod records;
 
 use crate::features::EPSILON;
 use crate::kernel::ops::Ops;
@@ -16,6 +17,7 @@ use crate::kernel::ops::Ops;
 use crate::model::Architecture;
 use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
 use candle_core::{DType, Device, Tensor, Var};
+pub use records::LogRow;
 
 /// Adam (AdamW with weight decay 0) whose state can be saved and restored exactly.
 pub struct Adam {
@@ -253,27 +255,6 @@ pub struct TrainOptions {
     pub ops: Ops,
 }
 
-/// One line of the training log.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LogRow {
-    /// Step (1-based).
-    pub step: u64,
-    /// 1 or 2.
-    pub phase: u8,
-    /// Diffuse-branch L1 (phase 1).
-    pub loss_diffuse: f32,
-    /// Specular-branch L1 (phase 1).
-    pub loss_specular: f32,
-    /// Recomposed-colour L1 (phase 2).
-    pub loss_combined: f32,
-    /// Mean relMSE of the held-out frames' denoised colour, when validated this step.
-    pub validation_relmse: Option<f64>,
-    /// Median of the same: one outlier frame (a kept firefly) cannot move it.
-    pub validation_median_relmse: Option<f64>,
-    /// Training throughput.
-    pub patches_per_second: f64,
-}
-
 /// relMSE of the denoised held-out frames against their references.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Validation {
@@ -434,9 +415,9 @@ impl<'a> Trainer<'a> {
         let mut row = LogRow {
             step: self.step,
             phase: 1,
-            loss_diffuse: f32::NAN,
-            loss_specular: f32::NAN,
-            loss_combined: f32::NAN,
+            loss_diffuse: f64::NAN,
+            loss_specular: f64::NAN,
+            loss_combined: f64::NAN,
             validation_relmse: None,
             validation_median_relmse: None,
             patches_per_second: 0.0,
@@ -446,15 +427,15 @@ impl<'a> Trainer<'a> {
             self.adam_d.step(&self.model.vars(true, false), &ld)?;
             let ls = l1(&self.model.predict(false, &bs.input, &bs.noisy)?, &bs.target)?;
             self.adam_s.step(&self.model.vars(false, true), &ls)?;
-            row.loss_diffuse = scalar(&ld)?;
-            row.loss_specular = scalar(&ls)?;
+            row.loss_diffuse = scalar(&ld)? as f64;
+            row.loss_specular = scalar(&ls)? as f64;
         } else {
             row.phase = 2;
             let d = self.model.predict(true, &bd.input, &bd.noisy)?;
             let s = self.model.predict(false, &bs.input, &bs.noisy)?;
             let lc = l1(&recompose(&bd.albedo, &d, &s)?, &bd.reference)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
-            row.loss_combined = scalar(&lc)?;
+            row.loss_combined = scalar(&lc)? as f64;
         }
         row.patches_per_second = self.opts.batch as f64 / t.elapsed().as_secs_f64().max(1e-9);
         Ok(row)
