@@ -219,3 +219,22 @@ fn cpp17_program_denoises_a_file_through_pkg_config() {
     }
     assert_eq!(got.channel_names().count(), 9, "--separate: only the new layers");
 }
+
+/// The crate C hosts link (`--no-default-features`) pulls in none of the tools' crates.
+#[test]
+fn the_library_core_depends_on_no_tool_crates() {
+    let tree = run(Command::new("cargo").current_dir(root()).args([
+        "tree",
+        "--locked",
+        "--offline",
+        "-e",
+        "normal",
+        "--no-default-features",
+        "--prefix",
+        "none",
+    ]));
+    assert!(tree.contains("candle-core"), "{tree}");
+    for tool in ["clap", "indicatif", "anyhow", "plotters", "ctrlc"] {
+        assert!(!tree.lines().any(|l| l.starts_with(&format!("{tool} v"))), "the core depends on {tool}:\n{tree}");
+    }
+}

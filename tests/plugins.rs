@@ -46,6 +46,36 @@ fn oiio_plugin_denoises_inside_oiiotool() {
     assert_eq!(pid_files.count(), 0, "temporary files left in {}", temp.display());
 }
 
+/// The ImageBuf helper (`plugins/oiio/kpcn_imagebuf.h`) in a C++ tool: half ImageBufs
+/// picked by channel name give exactly `kpcn denoise` on the same passes.
+#[test]
+fn oiio_imagebuf_helper_matches_the_cli() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = dir.path().join("imagebuf_test");
+    let lib = prefix().join("lib");
+    let flags = run(Command::new("pkg-config")
+        .args(["--cflags", "--libs", "kpcn", "OpenImageIO"])
+        .env("PKG_CONFIG_PATH", lib.join("pkgconfig")));
+    run(Command::new("g++")
+        .args(["-std=c++17", "-Wall", "-Wextra", "-Werror", "-Wno-deprecated-declarations"])
+        .arg("-I")
+        .arg(root().join("plugins/oiio"))
+        .arg(root().join("tests/c/imagebuf_test.cpp"))
+        .arg("-o")
+        .arg(&exe)
+        .args(flags.split_whitespace())
+        .arg(format!("-Wl,-rpath,{}", lib.display())));
+    let cli = cli_on_passes(dir.path());
+    let out = dir.path().join("out.exr");
+    let text = run(Command::new(&exe).arg(dir.path().join("passes.exr")).arg(&out));
+    assert!(text.contains("ok"), "{text}");
+    let got = FrameBuffers::read(&out).unwrap();
+    for c in ["R", "G", "B"] {
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(bits(got.channel(c).unwrap()) == bits(cli.channel(&format!("denoised.{c}")).unwrap()), "{c} differs");
+    }
+}
+
 /// Debian's Blender renders a tiny Cycles scene at 4 spp with the add-on enabled: each
 /// written multilayer EXR gets `ViewLayer.Denoised` in place with every pass kept, the
 /// compositor's Image node lists it, "Denoise Last Render" works, and both results equal
@@ -88,6 +118,28 @@ fn blender_addon_denoises_renders_in_blender() {
     }
 }
 
+/// The passes a compositor or C++ tool has (no variances), by clip name: channels of the
+/// example frame.
+const PASSES: [(&str, &[&str]); 5] = [
+    ("Source", &["R", "G", "B"]),
+    ("Diffuse", &["diffuse.R", "diffuse.G", "diffuse.B"]),
+    ("Albedo", &["albedo.R", "albedo.G", "albedo.B"]),
+    ("Normal", &["normal.R", "normal.G", "normal.B"]),
+    ("Depth", &["depth.Z"]),
+];
+
+/// Writes the example's [`PASSES`] to `dir/passes.exr` and returns `kpcn denoise
+/// --separate` of it: variances estimated, specular derived, as for a host without them.
+fn cli_on_passes(dir: &Path) -> FrameBuffers {
+    let fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
+    let keep: Vec<&str> = PASSES.iter().flat_map(|(_, names)| names.iter().copied()).collect();
+    let passes = dir.join("passes.exr");
+    fb.select(&keep).unwrap().write(&passes, &Default::default()).unwrap();
+    let cli = dir.join("cli.exr");
+    run(Command::new(env!("CARGO_BIN_EXE_kpcn")).args(["denoise", "--separate", "-q", "-o"]).arg(&cli).arg(&passes));
+    FrameBuffers::read(&cli).unwrap()
+}
+
 /// Writes `planes` (RGB, or 1 for depth) as a raw float RGBA image, rows bottom-up as OFX
 /// lays them out.
 fn write_ofx_rgba(path: &Path, planes: &[&[f32]], w: usize, h: usize) {
@@ -121,26 +173,13 @@ fn openfx_plugin_renders_in_a_hostsupport_host() {
     // a native-layout EXR for the CLI.
     let fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
     let (w, h) = (fb.width(), fb.height());
-    let rgb = |layer: &str| -> Vec<String> {
-        ["R", "G", "B"].iter().map(|c| if layer.is_empty() { c.to_string() } else { format!("{layer}.{c}") }).collect()
-    };
     let images = dir.path().join("images");
     std::fs::create_dir_all(&images).unwrap();
-    let mut keep: Vec<String> = Vec::new();
-    for (clip, names) in [
-        ("Source", rgb("")),
-        ("Diffuse", rgb("diffuse")),
-        ("Albedo", rgb("albedo")),
-        ("Normal", rgb("normal")),
-        ("Depth", vec!["depth.Z".to_string()]),
-    ] {
+    for (clip, names) in PASSES {
         let planes: Vec<&[f32]> = names.iter().map(|n| fb.channel(n).unwrap()).collect();
         write_ofx_rgba(&images.join(format!("{clip}.f32")), &planes, w, h);
-        keep.extend(names);
     }
-    let passes = dir.path().join("passes.exr");
-    let keep: Vec<&str> = keep.iter().map(String::as_str).collect();
-    fb.select(&keep).unwrap().write(&passes, &Default::default()).unwrap();
+    let cli = cli_on_passes(dir.path());
 
     let ofx_host = |extra: &[&str]| {
         let out = Command::new(host.join("ofx_host"))
@@ -162,9 +201,6 @@ fn openfx_plugin_renders_in_a_hostsupport_host() {
     let (text, pixels) = ofx_host(&[]);
     assert!(text.contains("render: 0") && text.contains("abort checks: 1"), "{text}");
 
-    let cli = dir.path().join("cli.exr");
-    run(Command::new(env!("CARGO_BIN_EXE_kpcn")).args(["denoise", "--separate", "-q", "-o"]).arg(&cli).arg(&passes));
-    let cli = FrameBuffers::read(&cli).unwrap();
     for (c, name) in ["denoised.R", "denoised.G", "denoised.B"].iter().enumerate() {
         let want = cli.channel(name).unwrap();
         for y in 0..h {
