@@ -10,5 +10,6 @@ mod io_errors;
 mod io_roundtrip;
 mod layout_files;
 mod plugins;
+mod reliability;
 mod sim;
 mod train;

@@ -3,6 +3,7 @@
 use super::sequence::{Pattern, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
 use crate::io::WriteOptions;
+use crate::io::atomic::{check_writable, same_file};
 use crate::io::layout::Layout;
 use crate::model::Model;
 use anyhow::bail;
@@ -32,8 +33,12 @@ pub struct DenoiseArgs {
     #[arg(long)]
     pub aovs: bool,
     /// Write only the new layers (and the metadata), not a copy of every input channel.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "in_place")]
     pub separate: bool,
+    /// Allow OUT to be IN itself (the same file, links followed): the denoised layer is
+    /// added to the render in place, atomically. Without it, such an OUT is refused.
+    #[arg(long)]
+    pub in_place: bool,
     /// Channel naming convention; detected when omitted.
     #[arg(long, value_name = "native|cycles|renderman", value_parser = clap::value_parser!(super::info::LayoutArg))]
     pub layout: Option<super::info::LayoutArg>,
@@ -82,9 +87,32 @@ fn jobs(args: &DenoiseArgs) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
     }
 }
 
+/// Refuses, before any work, outputs that cannot be written or that would replace their
+/// input without `--in-place`; every problem is listed.
+fn check_outputs(jobs: &[(PathBuf, PathBuf)], in_place: bool) -> anyhow::Result<()> {
+    let mut problems = Vec::new();
+    for (input, output) in jobs {
+        if same_file(input, output) && !in_place {
+            problems.push(format!(
+                "{}: is the input {} itself — the render would be replaced; give --in-place to add the denoised layer to it, or choose another output",
+                output.display(),
+                input.display()
+            ));
+        } else if let Err(why) = check_writable(output) {
+            problems.push(format!("{}: {why}", output.display()));
+        }
+    }
+    match problems.len() {
+        0 => Ok(()),
+        1 => bail!("{}", problems[0]),
+        n => bail!("{n} outputs cannot be written:\n  {}", problems.join("\n  ")),
+    }
+}
+
 /// Runs `kpcn denoise`.
 pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     let jobs = jobs(args)?;
+    check_outputs(&jobs, args.in_place)?;
     if args.dry_run {
         for (i, o) in &jobs {
             let note = if i.exists() { "" } else { "  (input missing)" };

@@ -21,7 +21,11 @@ impl AtomicFile {
     /// `.NAME.kpcn-PID-N.tmp.EXT`, hidden, ending in `target`'s extension so writers that
     /// choose a format by extension accept it. With `no_clobber`, commit fails rather than
     /// replace a file that exists by then.
+    ///
+    /// A symbolic link is written through, as `cp` and oiiotool do: the file it points to
+    /// is replaced and the link stays.
     pub fn new(target: &Path, no_clobber: bool) -> AtomicFile {
+        let target = &resolve_links(target);
         static COUNTER: AtomicU64 = AtomicU64::new(0);
         let n = COUNTER.fetch_add(1, Ordering::Relaxed);
         let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -45,6 +49,10 @@ impl AtomicFile {
     /// writers (a hard link never replaces).
     pub fn commit(mut self) -> io::Result<()> {
         let temp = self.temp.clone().expect("set until commit");
+        // A replaced file keeps its permissions (as with `cp`), not the umask's.
+        if let Ok(old) = fs::metadata(&self.target) {
+            fs::set_permissions(&temp, old.permissions())?;
+        }
         fs::File::open(&temp)?.sync_all()?;
         if self.no_clobber {
             fs::hard_link(&temp, &self.target)?;
@@ -67,6 +75,55 @@ impl Drop for AtomicFile {
             let _ = fs::remove_file(p);
         }
     }
+}
+
+/// `path` with symbolic links followed to the file they name (which may not exist yet).
+pub fn resolve_links(path: &Path) -> PathBuf {
+    let mut p = path.to_path_buf();
+    // A bounded number of hops: a link cycle is left for the write to report.
+    for _ in 0..40 {
+        match fs::read_link(&p) {
+            Ok(to) => p = if to.is_absolute() { to } else { p.parent().unwrap_or(Path::new("")).join(to) },
+            Err(_) => break,
+        }
+    }
+    p
+}
+
+/// Whether `a` and `b` are the same file (links followed); false when either is missing.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (fs::metadata(a), fs::metadata(b)) {
+        (Ok(a), Ok(b)) => (a.dev(), a.ino()) == (b.dev(), b.ino()),
+        _ => false,
+    }
+}
+
+/// Why `target` cannot be written as an output, checked before any work: it is a folder,
+/// its folder is missing, or it exists and this user may not write it (as `cp` refuses).
+pub fn check_writable(target: &Path) -> Result<(), String> {
+    let target = resolve_links(target);
+    if target.is_dir() {
+        return Err("is a folder — give a file name (e.g. DIR/frame.exr)".into());
+    }
+    let dir = target.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !dir.is_dir() {
+        return Err(format!("its folder {} does not exist — create it first", dir.display()));
+    }
+    if target.exists() && !writable(&target) {
+        return Err("exists and is not writable by you — change its permissions or choose another name".into());
+    }
+    if !writable(dir) {
+        return Err(format!("its folder {} is not writable by you", dir.display()));
+    }
+    Ok(())
+}
+
+fn writable(p: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    let Ok(c) = std::ffi::CString::new(p.as_os_str().as_bytes()) else { return false };
+    // SAFETY: a valid NUL-terminated path; access(2) only reads it.
+    unsafe { libc::access(c.as_ptr(), libc::W_OK) == 0 }
 }
 
 /// Writes `bytes` to `path` atomically (replacing it).
@@ -97,5 +154,23 @@ mod tests {
         assert_eq!(fs::read(&target).unwrap(), b"two");
         let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, ["m.safetensors"], "no temporary file is left");
+    }
+
+    #[test]
+    fn links_are_written_through_and_modes_kept() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let (real, link) = (dir.path().join("real.bin"), dir.path().join("link.bin"));
+        fs::write(&real, b"old").unwrap();
+        fs::set_permissions(&real, fs::Permissions::from_mode(0o640)).unwrap();
+        std::os::unix::fs::symlink("real.bin", &link).unwrap();
+        assert!(same_file(&real, &link));
+        write_atomically(&link, b"new").unwrap();
+        assert!(fs::symlink_metadata(&link).unwrap().file_type().is_symlink(), "the link stays a link");
+        assert_eq!(fs::read(&real).unwrap(), b"new");
+        assert_eq!(fs::metadata(&real).unwrap().permissions().mode() & 0o777, 0o640);
+        assert!(check_writable(dir.path()).unwrap_err().contains("is a folder"));
+        assert!(check_writable(&dir.path().join("no/such/x.exr")).unwrap_err().contains("does not exist"));
+        assert!(check_writable(&link).is_ok());
     }
 }

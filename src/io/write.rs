@@ -115,6 +115,7 @@ impl FrameWriter {
         if opts.no_clobber && path.exists() {
             return Err(IoError::Exists { path: path.into() });
         }
+        super::atomic::check_writable(path).map_err(|reason| IoError::Write { path: path.into(), reason })?;
         let attributes: Vec<Attribute> =
             header.attributes.iter().filter(|a| !is_file_structure(&a.name)).cloned().collect();
         let specs: Vec<OutputSpec> = parts
