@@ -102,3 +102,82 @@ fn a_file_the_user_cannot_write_is_not_replaced() {
     assert_eq!(std::fs::read(&locked).unwrap(), b"keep me");
     assert_eq!(std::fs::metadata(&locked).unwrap().permissions().mode() & 0o777, 0o444);
 }
+
+#[test]
+fn absurd_thread_counts_are_capped() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.exr");
+    let t = std::time::Instant::now();
+    let o = kpcn(&["denoise", EXAMPLE, "-o", out.to_str().unwrap(), "--threads", "10000"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("capped"), "{}", stderr(&o));
+    // 10,007 threads once took over 12 minutes here.
+    assert!(t.elapsed().as_secs() < 120, "{:?}", t.elapsed());
+}
+
+/// A sequence of small native frames `dir/render.NNNN.exr` for `frames`.
+fn sequence(dir: &Path, frames: &[i64]) {
+    for &f in frames {
+        super::util::write(&super::util::native_frame(24, 16, f as u64, &[]), dir, &format!("render.{f:04}.exr"));
+    }
+}
+
+#[test]
+fn frame_lists_and_padding_are_checked_the_same_way_in_dry_runs_and_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    sequence(dir.path(), &[1, 2, 4]);
+    let p = |s: &str| dir.path().join(s).to_str().unwrap().to_string();
+    let (input, output) = (p("render.####.exr"), p("den.####.exr"));
+
+    let t = std::time::Instant::now();
+    let o = kpcn(&["denoise", &input, "-o", &output, "--frames", "1-100000000", "-n"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("at most 1000000"), "{}", stderr(&o));
+    assert!(t.elapsed().as_secs() < 10, "refused without expanding: {:?}", t.elapsed());
+
+    // `@@@` names 3-digit files: the 4-digit ones are not its frames.
+    let o = kpcn(&["denoise", &p("render.@@@.exr"), "-o", &p("den.@@@.exr"), "-n"]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stdout));
+    assert!(stderr(&o).contains("padding"), "{}", stderr(&o));
+
+    // Frames found on disk: the gap is reported.
+    let o = kpcn(&["denoise", &input, "-o", &output, "-n"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("frames 3 are missing between 1 and 4"), "{}", stderr(&o));
+    // Asked for explicitly, the missing frame fails the dry run as it would the run.
+    let o = kpcn(&["denoise", &input, "-o", &output, "--frames", "1-4", "-n"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("1 input(s) missing"), "{}", stderr(&o));
+    let o = kpcn(&["denoise", &input, "-o", &output, "--frames", "1-4", "-q"]);
+    assert_eq!(o.status.code(), Some(1), "the run fails like the dry run");
+}
+
+#[test]
+fn a_rerun_with_skip_existing_resumes_and_farm_logs_get_a_line_per_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    sequence(dir.path(), &[1, 2, 3]);
+    let p = |s: &str| dir.path().join(s).to_str().unwrap().to_string();
+    let (input, output) = (p("render.####.exr"), p("den.####.exr"));
+    let o = kpcn(&["denoise", &input, "-o", &output]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // stderr is a pipe here, as on a farm: a line per frame, no bar.
+    assert_eq!(stderr(&o).matches("kpcn: frame ").count(), 3, "{}", stderr(&o));
+    assert!(stderr(&o).contains("kpcn: frame 2/3"), "{}", stderr(&o));
+
+    // Preempted mid-frame: frame 2's output is cut short.
+    let den2 = dir.path().join("den.0002.exr");
+    let bytes = std::fs::read(&den2).unwrap();
+    std::fs::write(&den2, &bytes[..bytes.len() / 2]).unwrap();
+    let before = std::fs::metadata(dir.path().join("den.0001.exr")).unwrap().modified().unwrap();
+    let o = kpcn(&["denoise", &input, "-o", &output, "--skip-existing"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("skipping 2 of 3"), "{}", stderr(&o));
+    assert_eq!(std::fs::metadata(dir.path().join("den.0001.exr")).unwrap().modified().unwrap(), before);
+    assert!(FrameBuffers::read(&den2).is_ok(), "frame 2 redone");
+    let o = kpcn(&["denoise", &input, "-o", &output, "--skip-existing"]);
+    assert!(o.status.success() && stderr(&o).contains("skipping 3 of 3"), "{}", stderr(&o));
+    // --no-clobber keeps its meaning, and a dry run says so with the run's status.
+    let o = kpcn(&["denoise", &input, "-o", &output, "--no-clobber", "-n"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("3 output(s) refused by --no-clobber"), "{}", stderr(&o));
+}

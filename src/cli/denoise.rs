@@ -1,14 +1,15 @@
 //! `kpcn denoise`: files and image sequences, a thin shell over `Denoiser`.
 
-use super::sequence::{Pattern, parse_frames};
+use super::sequence::{Pattern, gaps, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
-use crate::io::WriteOptions;
 use crate::io::atomic::{check_writable, same_file};
 use crate::io::layout::Layout;
+use crate::io::{FrameBuffers, WriteOptions};
 use crate::model::Model;
 use anyhow::bail;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `kpcn denoise`.
@@ -51,6 +52,10 @@ pub struct DenoiseArgs {
     /// Refuse to overwrite existing outputs.
     #[arg(long)]
     pub no_clobber: bool,
+    /// Skip frames whose output already exists and is a complete EXR (a farm task re-run
+    /// after preemption resumes where it stopped); exit 0 when all are done.
+    #[arg(long)]
+    pub skip_existing: bool,
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
@@ -77,10 +82,30 @@ fn jobs(args: &DenoiseArgs) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
         (Some(i), Some(o)) => {
             let frames = match &args.frames {
                 Some(spec) => parse_frames(spec).map_err(anyhow::Error::msg)?,
-                None => i.existing_frames(),
+                None => {
+                    let found = i.existing_frames();
+                    let holes = gaps(&found);
+                    if !holes.is_empty() && !args.quiet {
+                        let spans: Vec<String> = holes
+                            .iter()
+                            .map(|&(a, b)| if a == b { a.to_string() } else { format!("{a}-{b}") })
+                            .collect();
+                        eprintln!(
+                            "kpcn: warning: {}: frames {} are missing between {} and {} (they are skipped)",
+                            args.input,
+                            spans.join(", "),
+                            found[0],
+                            found[found.len() - 1]
+                        );
+                    }
+                    found
+                }
             };
             if frames.is_empty() {
-                bail!("{}: no frames found — check the pattern or give --frames", args.input);
+                bail!(
+                    "{}: no frames found — check the pattern (its padding must match the files': #### or @@@@ for 0001) or give --frames",
+                    args.input
+                );
             }
             Ok(frames.into_iter().map(|f| (i.path(f), o.path(f))).collect())
         }
@@ -111,12 +136,35 @@ fn check_outputs(jobs: &[(PathBuf, PathBuf)], in_place: bool) -> anyhow::Result<
 
 /// Runs `kpcn denoise`.
 pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
-    let jobs = jobs(args)?;
+    let mut jobs = jobs(args)?;
     check_outputs(&jobs, args.in_place)?;
+    if args.skip_existing {
+        let before = jobs.len();
+        jobs.retain(|(_, o)| FrameBuffers::read(o).is_err());
+        if !args.quiet && jobs.len() < before {
+            eprintln!("kpcn: skipping {} of {before} frames whose output is complete", before - jobs.len());
+        }
+        if jobs.is_empty() {
+            return Ok(());
+        }
+    }
     if args.dry_run {
+        // The same checks as a real run, so `-n` exits as the run would.
+        let (mut missing, mut clobbered) = (0, 0);
         for (i, o) in &jobs {
-            let note = if i.exists() { "" } else { "  (input missing)" };
+            let note = if !i.exists() {
+                missing += 1;
+                "  (input missing)"
+            } else if args.no_clobber && o.exists() {
+                clobbered += 1;
+                "  (output exists: --no-clobber refuses it)"
+            } else {
+                ""
+            };
             println!("{} -> {}{note}", i.display(), o.display());
+        }
+        if missing + clobbered > 0 {
+            bail!("the run would fail: {missing} input(s) missing, {clobbered} output(s) refused by --no-clobber");
         }
         return Ok(());
     }
@@ -129,7 +177,11 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     }
     let denoiser = Denoiser::new(
         model,
-        Options { threads: args.threads, max_memory_mb: args.max_memory.max(16), tile_size: None },
+        Options {
+            threads: super::threads(args.threads, args.quiet),
+            max_memory_mb: args.max_memory.max(16),
+            tile_size: None,
+        },
     )?;
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(jobs.len() as u64 * 1000) };
     bar.set_style(
@@ -139,13 +191,31 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     );
     let mut failed = Vec::new();
     let mut warned = false;
+    // Farm schedulers capture stderr to a file: one line per frame (and per quarter of a
+    // long frame) instead of a bar that only a terminal can draw.
+    let farm = !args.quiet && !std::io::stderr().is_terminal();
     for (k, (input, output)) in jobs.iter().enumerate() {
         bar.set_message(format!("frame {}/{}", k + 1, jobs.len()));
+        let t = std::time::Instant::now();
+        let quarter = std::cell::Cell::new(0);
         let step = |p: Progress| {
             bar.set_position(k as u64 * 1000 + (1000 * p.done / p.total.max(1)) as u64);
+            let q = 4 * p.done / p.total.max(1);
+            if farm && p.total >= 8 && q > quarter.get() && q < 4 {
+                quarter.set(q);
+                eprintln!("kpcn: frame {}/{} {}: {}%", k + 1, jobs.len(), input.display(), 25 * q);
+            }
             true
         };
         match denoise_file(&denoiser, args, input, output, &step, &mut warned, &bar) {
+            Ok(()) if farm => eprintln!(
+                "kpcn: frame {}/{} {} -> {} ({:.1} s)",
+                k + 1,
+                jobs.len(),
+                input.display(),
+                output.display(),
+                t.elapsed().as_secs_f64()
+            ),
             Ok(()) => {}
             Err(e) if args.skip_bad_frames => {
                 bar.suspend(|| eprintln!("kpcn: error: {} (skipped)", super::describe_error(&e)));
@@ -173,7 +243,7 @@ fn denoise_file(
     args: &DenoiseArgs,
     input: &Path,
     output: &Path,
-    progress: &(dyn Fn(Progress) -> bool + Sync),
+    progress: &dyn Fn(Progress) -> bool,
     warned: &mut bool,
     bar: &ProgressBar,
 ) -> anyhow::Result<()> {

@@ -126,6 +126,24 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[derive(Debug)]
 pub struct Reported(pub usize);
 
+/// `--threads N` checked against the machine: beyond its cores it is allowed with a
+/// warning, beyond 4 per core (an absurd value) capped with one.
+pub fn threads(requested: Option<usize>, quiet: bool) -> Option<usize> {
+    let n = requested?;
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+    let max = crate::denoise::max_threads();
+    if n > max {
+        eprintln!("kpcn: warning: --threads {n} capped to {max} (4 per core on this {cores}-core machine)");
+        return Some(max);
+    }
+    if n > cores && !quiet {
+        eprintln!(
+            "kpcn: warning: --threads {n} is more than this machine's {cores} cores; it will run slower, not faster"
+        );
+    }
+    Some(n.max(1))
+}
+
 /// An error's message for the terminal: the library's text (which names no flags), plus
 /// the command-line flag behind it where there is one.
 pub fn describe_error(e: &anyhow::Error) -> String {

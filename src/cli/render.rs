@@ -118,8 +118,8 @@ impl SamplingArgs {
 
     fn pool(&self) -> anyhow::Result<rayon::ThreadPool> {
         let mut b = rayon::ThreadPoolBuilder::new();
-        if let Some(n) = self.threads {
-            b = b.num_threads(n.max(1));
+        if let Some(n) = super::threads(self.threads, self.quiet) {
+            b = b.num_threads(n);
         }
         b.build().context("cannot start worker threads")
     }

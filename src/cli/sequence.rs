@@ -55,8 +55,11 @@ impl Pattern {
             .filter_map(|e| {
                 let name = e.file_name().to_string_lossy().into_owned();
                 let digits = name.strip_prefix(&stem)?.strip_suffix(&self.suffix)?.to_string();
-                let ok = digits.len() >= self.width && digits.chars().all(|c| c.is_ascii_digit());
-                if ok { digits.parse().ok() } else { None }
+                let ok = !digits.is_empty() && digits.trim_start_matches('-').chars().all(|c| c.is_ascii_digit());
+                let f: i64 = if ok { digits.parse().ok()? } else { return None };
+                // Only names this pattern writes: `@@@` does not match render.0001.exr, whose
+                // frame it would name render.001.exr.
+                (self.path(f).file_name()? == e.file_name()).then_some(f)
             })
             .collect();
         frames.sort_unstable();
@@ -65,10 +68,20 @@ impl Pattern {
     }
 }
 
+/// The most frames one run takes: a typo like `1-100000000` is refused at once instead of
+/// listing 10⁸ frames.
+pub const MAX_FRAMES: u64 = 1_000_000;
+
+/// Frames missing inside `frames`' range (sorted input), as `3, 7-9` spans.
+pub fn gaps(frames: &[i64]) -> Vec<(i64, i64)> {
+    frames.windows(2).filter(|w| w[1] > w[0] + 1).map(|w| (w[0] + 1, w[1] - 1)).collect()
+}
+
 /// Parses `1-100`, `1-100x5`, `1,3,5` and comma-separated combinations.
 pub fn parse_frames(spec: &str) -> Result<Vec<i64>, String> {
     let bad = || format!("`{spec}` is not a frame list — use e.g. 1-100, 1-100x5 or 1,3,5");
     let mut out = Vec::new();
+    let mut count: u64 = 0;
     for part in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         let (range, step) = match part.split_once('x') {
             Some((r, s)) => (r, s.parse::<i64>().map_err(|_| bad())?),
@@ -90,6 +103,14 @@ pub fn parse_frames(spec: &str) -> Result<Vec<i64>, String> {
         };
         if b < a {
             return Err(bad());
+        }
+        // Counted before anything is expanded.
+        count = count.saturating_add((b.abs_diff(a)) / step as u64 + 1);
+        if count > MAX_FRAMES {
+            return Err(format!(
+                "`{spec}` lists {} frames or more; one run takes at most {MAX_FRAMES} — split the range",
+                count
+            ));
         }
         out.extend((a..=b).step_by(step as usize));
     }
@@ -118,6 +139,11 @@ mod tests {
         assert_eq!(parse_frames("1,3,5").unwrap(), [1, 3, 5]);
         assert_eq!(parse_frames("1-2,7,10-12x2").unwrap(), [1, 2, 7, 10, 12]);
         assert_eq!(parse_frames("-2--1").unwrap(), [-2, -1]);
+        let t = std::time::Instant::now();
+        assert!(parse_frames("1-100000000").unwrap_err().contains("at most 1000000"));
+        assert!(parse_frames("1-600000,1-600000").is_err());
+        assert!(t.elapsed().as_secs_f64() < 1.0, "refused before expanding");
+        assert_eq!(gaps(&[1, 2, 4, 8]), [(3, 3), (5, 7)]);
         for bad in ["", "a-b", "5-1", "1-5x0", "1-5x"] {
             assert!(parse_frames(bad).is_err(), "{bad}");
         }

@@ -178,8 +178,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         });
     }
     let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(n) = args.threads {
-        pool = pool.num_threads(n.max(1));
+    if let Some(n) = super::threads(args.threads, args.quiet) {
+        pool = pool.num_threads(n);
     }
     let pool = pool.build().context("cannot start worker threads")?;
     let started = std::time::Instant::now();

@@ -21,7 +21,7 @@ const MAX_LOG_SPECULAR: f32 = 80.0;
 /// How to run.
 #[derive(Debug, Clone)]
 pub struct Options {
-    /// Worker threads (default: all cores).
+    /// Worker threads (default: all cores). More than [`max_threads`] are capped to it.
     pub threads: Option<usize>,
     /// Working-memory budget for one tile's network evaluation, in MB.
     pub max_memory_mb: usize,
@@ -33,6 +33,12 @@ impl Default for Options {
     fn default() -> Self {
         Options { threads: None, max_memory_mb: 512, tile_size: None }
     }
+}
+
+/// The most worker threads a denoiser starts: 4 per available core. More only thrash (a
+/// request for 10,000 threads once ran for minutes at a load average of 500).
+pub fn max_threads() -> usize {
+    4 * std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// Progress: tiles done of total.
@@ -90,7 +96,7 @@ impl Denoiser {
     pub fn new(model: Model, options: Options) -> Result<Denoiser, DenoiseError> {
         let mut b = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("kpcn-{i}"));
         if let Some(n) = options.threads {
-            b = b.num_threads(n.max(1));
+            b = b.num_threads(n.clamp(1, max_threads()));
         }
         let pool = b.build().map_err(|_| DenoiseError::Threads(options.threads.unwrap_or(0)))?;
         let pyramid = match model.arch.design {
