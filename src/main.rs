@@ -21,7 +21,8 @@ fn main() -> ExitCode {
             if e.downcast_ref::<kpcn::cli::Reported>().is_none() {
                 eprintln!("kpcn: error: {}", kpcn::cli::describe_error(&e));
             }
-            ExitCode::FAILURE
+            // 2 for usage errors, as the argument parser exits; 1 for everything else.
+            if e.downcast_ref::<kpcn::cli::Usage>().is_some() { ExitCode::from(2) } else { ExitCode::FAILURE }
         }
     }
 }

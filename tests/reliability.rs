@@ -131,7 +131,7 @@ fn frame_lists_and_padding_are_checked_the_same_way_in_dry_runs_and_runs() {
 
     let t = std::time::Instant::now();
     let o = kpcn(&["denoise", &input, "-o", &output, "--frames", "1-100000000", "-n"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2), "a usage error");
     assert!(stderr(&o).contains("at most 1000000"), "{}", stderr(&o));
     assert!(t.elapsed().as_secs() < 10, "refused without expanding: {:?}", t.elapsed());
 
@@ -180,4 +180,51 @@ fn a_rerun_with_skip_existing_resumes_and_farm_logs_get_a_line_per_frame() {
     let o = kpcn(&["denoise", &input, "-o", &output, "--no-clobber", "-n"]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("3 output(s) refused by --no-clobber"), "{}", stderr(&o));
+}
+
+#[test]
+fn sigterm_and_sigint_remove_the_partial_output_and_exit_143_and_130() {
+    for (sig, code) in [(libc::SIGTERM, 143), (libc::SIGINT, 130)] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out.exr");
+        // A small memory budget: many bands, so the output is being written for a while.
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kpcn"))
+            .args(["denoise", EXAMPLE, "-q", "--threads", "1", "--max-memory", "16", "-o"])
+            .arg(&out)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t = std::time::Instant::now();
+        let writing = || {
+            std::fs::read_dir(dir.path())
+                .unwrap()
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with(".out.exr.kpcn-"))
+        };
+        while !writing() {
+            assert!(t.elapsed().as_secs() < 60, "no temporary file appeared");
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        // SAFETY: signalling our own child.
+        unsafe { libc::kill(child.id() as i32, sig) };
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(code), "signal {sig}");
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().map(|e| e.file_name()).collect();
+        assert!(left.is_empty(), "left behind: {left:?}");
+    }
+}
+
+#[test]
+fn exit_codes_are_documented_and_usage_errors_exit_2() {
+    let help = kpcn(&["--help"]);
+    let text = String::from_utf8_lossy(&help.stdout);
+    for s in ["0 success", "1 runtime error", "2 usage error", "130", "143"] {
+        assert!(text.contains(s), "--help lacks `{s}`:\n{text}");
+    }
+    let o = kpcn(&["denoise", "in.####.exr", "-o", "out.exr"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = kpcn(&["denoise", "--bogus"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = kpcn(&["denoise", "/nonexistent/in.exr", "-o", "/tmp/kpcn-out-never.exr", "-q"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
 }

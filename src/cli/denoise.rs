@@ -1,5 +1,6 @@
 //! `kpcn denoise`: files and image sequences, a thin shell over `Denoiser`.
 
+use super::Usage;
 use super::sequence::{Pattern, gaps, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
 use crate::io::atomic::{check_writable, same_file};
@@ -75,13 +76,17 @@ pub struct DenoiseArgs {
 fn jobs(args: &DenoiseArgs) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
     match (Pattern::parse(&args.input), Pattern::parse(&args.output)) {
         (None, None) => Ok(vec![(args.input.clone().into(), args.output.clone().into())]),
-        (Some(_), None) => {
-            bail!("{}: the input is a sequence but the output has no frame field — use e.g. out.####.exr", args.output)
+        (Some(_), None) => Err(Usage(format!(
+            "{}: the input is a sequence but the output has no frame field — use e.g. out.####.exr",
+            args.output
+        ))
+        .into()),
+        (None, Some(_)) => {
+            Err(Usage(format!("{}: the output is a sequence but the input is one file", args.output)).into())
         }
-        (None, Some(_)) => bail!("{}: the output is a sequence but the input is one file", args.output),
         (Some(i), Some(o)) => {
             let frames = match &args.frames {
-                Some(spec) => parse_frames(spec).map_err(anyhow::Error::msg)?,
+                Some(spec) => parse_frames(spec).map_err(|e| Usage(format!("--frames: {e}")))?,
                 None => {
                     let found = i.existing_frames();
                     let holes = gaps(&found);

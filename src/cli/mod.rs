@@ -7,6 +7,7 @@ mod info;
 mod model;
 mod render;
 mod sequence;
+mod signals;
 mod speed;
 mod study;
 mod train;
@@ -22,7 +23,9 @@ use clap::{Parser, Subcommand};
     long_about = "kpcn reads layered EXRs (KPCN's native layout, Blender Cycles passes or RenderMan \
                   denoise AOVs) through OpenImageIO and denoises them with a kernel-predicting \
                   convolutional network (Bako et al. 2017).\n\n\
-                  Exit status: 0 on success, 1 on any error (the message names the file and what to do).",
+                  Exit status: 0 success; 1 runtime error (a file, the model, a failed frame: the \
+                  message names the file and what to do); 2 usage error (bad arguments); 130 \
+                  interrupted (SIGINT) and 143 terminated (SIGTERM), with partial outputs removed.",
     after_help = "Examples:\n  kpcn info render.0001.exr\n  kpcn info --layout cycles shot/*.exr"
 )]
 pub struct Cli {
@@ -107,6 +110,10 @@ pub fn peak_rss_kb() -> Option<u64> {
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    // `kpcn train` stops gracefully on Ctrl-C instead, after saving its checkpoint.
+    if !matches!(cli.command, Command::Train(_)) {
+        signals::exit_on_signals();
+    }
     match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Denoise(args) => denoise::run(&args),
@@ -121,6 +128,19 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Speed(args) => speed::run(&args),
     }
 }
+
+/// A usage error found after parsing (e.g. an input and output that are not both
+/// sequences): exit status 2, like the parser's own.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
 
 /// Errors already printed by a command; `main` only sets the exit status.
 #[derive(Debug)]

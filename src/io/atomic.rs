@@ -5,7 +5,51 @@
 use std::fs;
 use std::io;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Temporary files being written now, so a signal handler can remove them
+/// ([`remove_live_temp_files`]).
+static LIVE: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn live() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    LIVE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Removes every temporary file this process is writing. For a SIGTERM/SIGINT handler
+/// (running on an ordinary thread) just before the process exits.
+pub fn remove_live_temp_files() {
+    for p in live().drain(..) {
+        let _ = fs::remove_file(p);
+    }
+}
+
+/// Removes temporary files in `dir` left by kpcn processes that no longer run (killed with
+/// SIGKILL, or a machine that went down): `.NAME.kpcn-PID-N.tmp.EXT` with PID dead.
+pub fn remove_stale_temp_files(dir: &Path) {
+    let Ok(entries) = fs::read_dir(if dir.as_os_str().is_empty() { Path::new(".") } else { dir }) else { return };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = temp_file_pid(&name) else { continue };
+        // SAFETY: kill with signal 0 only checks that the process exists.
+        let dead = unsafe { libc::kill(pid, 0) } != 0 && io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if dead {
+            let _ = fs::remove_file(e.path());
+        }
+    }
+}
+
+/// The PID in a temporary file's name, `.NAME.kpcn-PID-N.tmp[.EXT]`.
+fn temp_file_pid(name: &str) -> Option<i32> {
+    if !name.starts_with('.') || !name.contains(".tmp") {
+        return None;
+    }
+    let rest = &name[name.rfind(".kpcn-")? + 6..];
+    let (pid, rest) = rest.split_once('-')?;
+    let (n, _) = rest.split_once(".tmp")?;
+    n.parse::<u64>().ok()?;
+    pid.parse().ok().filter(|&p: &i32| p > 0)
+}
 
 /// A temporary file that becomes `target` on [`commit`](AtomicFile::commit) and is removed
 /// when dropped uncommitted.
@@ -13,6 +57,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub struct AtomicFile {
     target: PathBuf,
     temp: Option<PathBuf>,
+    /// The temporary name, as registered in [`LIVE`] until dropped.
+    registered: PathBuf,
     no_clobber: bool,
 }
 
@@ -31,7 +77,9 @@ impl AtomicFile {
         let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let ext = target.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
         let temp = target.with_file_name(format!(".{name}.kpcn-{}-{n}.tmp{ext}", std::process::id()));
-        AtomicFile { target: target.into(), temp: Some(temp), no_clobber }
+        remove_stale_temp_files(target.parent().unwrap_or(Path::new("")));
+        live().push(temp.clone());
+        AtomicFile { target: target.into(), temp: Some(temp.clone()), registered: temp, no_clobber }
     }
 
     /// Where to write the content.
@@ -74,6 +122,7 @@ impl Drop for AtomicFile {
         if let Some(p) = self.temp.take() {
             let _ = fs::remove_file(p);
         }
+        live().retain(|l| *l != self.registered);
     }
 }
 
@@ -154,6 +203,26 @@ mod tests {
         assert_eq!(fs::read(&target).unwrap(), b"two");
         let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, ["m.safetensors"], "no temporary file is left");
+    }
+
+    #[test]
+    fn stale_temp_files_of_dead_processes_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(temp_file_pid(".a.exr.kpcn-123-4.tmp.exr"), Some(123));
+        assert_eq!(temp_file_pid("a.exr"), None);
+        // PID 0x3FFFFFFF is above Linux's pid_max: never alive.
+        let dead = dir.path().join(format!(".f.exr.kpcn-{}-0.tmp.exr", 0x3FFF_FFFF));
+        let alive = dir.path().join(format!(".f.exr.kpcn-{}-0.tmp.exr", std::process::id()));
+        fs::write(&dead, b"x").unwrap();
+        fs::write(&alive, b"x").unwrap();
+        let file = AtomicFile::new(&dir.path().join("f.exr"), false);
+        assert!(!dead.exists() && alive.exists());
+        // Registered for a signal handler (tests/reliability.rs sends the signals), and
+        // unregistered when dropped.
+        let temp = file.temp_path().to_path_buf();
+        assert!(live().contains(&temp));
+        drop(file);
+        assert!(!live().contains(&temp));
     }
 
     #[test]

@@ -1,0 +1,34 @@
+//! SIGINT and SIGTERM (what farm schedulers send): the temporary files being written are
+//! removed and the process exits with 130 or 143, as shells report signals.
+
+use std::sync::atomic::{AtomicI32, Ordering};
+use std::time::Duration;
+
+static SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+extern "C" fn on_signal(sig: libc::c_int) {
+    // Only an atomic store: the only async-signal-safe kind of work.
+    SIGNAL.store(sig, Ordering::SeqCst);
+}
+
+/// Installs the handlers and a watcher thread that does the cleanup on an ordinary thread.
+pub fn exit_on_signals() {
+    let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+    // SAFETY: the handler only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
+    }
+    std::thread::spawn(|| {
+        loop {
+            let sig = SIGNAL.load(Ordering::SeqCst);
+            if sig != 0 {
+                crate::io::atomic::remove_live_temp_files();
+                let what = if sig == libc::SIGINT { "interrupted" } else { "terminated" };
+                eprintln!("kpcn: {what}; partial outputs removed");
+                std::process::exit(128 + sig);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    });
+}
