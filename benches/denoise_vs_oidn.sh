@@ -3,12 +3,12 @@
 # same machine, same thread count. Needs `pip install pyoidn numpy` (a peer for the
 # comparison only, never a kpcn dependency) and GNU time (`apt-get install time`).
 #
-#   benches/denoise_vs_oidn.sh [RESOLUTION] [MODELS...]     e.g. 1280x720 small paper
+#   benches/denoise_vs_oidn.sh [RESOLUTION] [MODELS...]     e.g. 1280x720 default small-flat paper
 set -euo pipefail
 cd "$(dirname "$0")/.."
 res=${1:-1280x720}
 shift || true
-models=("${@:-small}")
+models=("${@:-default}")
 threads=2
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -42,7 +42,8 @@ PY
 grep "filter only" "$work/err" || true
 oidn=$(grep -o "[0-9.]* s" "$work/err" | head -1 | cut -d' ' -f1)
 for m in "${models[@]}"; do
-    measure "kpcn-$m" $kpcn denoise "$frame" -o "$work/out-$m.exr" --model "$m" --threads $threads -q
+    # Timing only: presets (untrained) cost what trained models of their shape cost.
+    measure "kpcn-$m" $kpcn denoise "$frame" -o "$work/out-$m.exr" --model "$m" --allow-untrained --threads $threads -q
     secs=$(cat "$work/kpcn-$m.secs")
     python3 -c "print(f'  kpcn-$m / oidn-high (filter only) = {$secs / $oidn:.1f}x (kpcn time includes EXR read + write)')"
 done

@@ -264,6 +264,7 @@ fn denoise_keeps_every_input_channel_and_adds_the_layers() {
             "-q",
             "--model",
             "small",
+            "--allow-untrained",
         ]);
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
         let a = FrameBuffers::read(&input).unwrap();
@@ -319,8 +320,26 @@ fn denoise_warns_about_untrained_models_and_estimated_variance() {
     let out = dir.path().join("o.exr");
     let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small"]);
     let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "untrained presets need --allow-untrained: {err}");
+    assert!(err.contains("--allow-untrained") && !out.exists(), "{err}");
+    // Not hidden by -q either.
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small", "-q"]);
+    assert_eq!(r.status.code(), Some(2));
+    let r = kpcn(&[
+        "denoise",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--model",
+        "small",
+        "--allow-untrained",
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
     assert!(r.status.success(), "{err}");
     assert!(err.contains("UNTRAINED"), "{err}");
+    // The shipped flat model has a name of its own.
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small-flat", "-q"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     assert!(err.contains("diffuse (spatially"), "{err}");
 }
 

@@ -228,3 +228,45 @@ fn exit_codes_are_documented_and_usage_errors_exit_2() {
     let o = kpcn(&["denoise", "/nonexistent/in.exr", "-o", "/tmp/kpcn-out-never.exr", "-q"]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
 }
+
+#[test]
+fn small_messages_are_right() {
+    let dir = tempfile::tempdir().unwrap();
+    // A zero-byte file is called empty, not "not an OpenEXR file".
+    let empty = dir.path().join("empty.exr");
+    std::fs::write(&empty, b"").unwrap();
+    let o = kpcn(&["info", empty.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("is empty (0 bytes)"), "{}", stderr(&o));
+
+    // A Cycles file without the diffuse passes: DiffCol (diffuse and albedo) named once;
+    // and `info` aligns its columns past Blender's long pass names.
+    let mut fb = FrameBuffers::new(8, 4);
+    for c in ["Combined.R", "Combined.G", "Combined.B", "Normal.X", "Normal.Y", "Normal.Z", "Depth.Z"]
+        .into_iter()
+        .chain(["Denoising Albedo.R", "Denoising Albedo.G", "Denoising Albedo.B"])
+    {
+        fb.insert(&format!("ViewLayer.{c}"), kpcn::io::SampleFormat::Half, vec![0.5; 32]).unwrap();
+    }
+    let partial = super::util::write(&fb, dir.path(), "partial.exr");
+    let o = kpcn(&["info", partial.to_str().unwrap()]);
+    assert_eq!(stderr(&o).matches("ViewLayer.DiffCol.R").count(), 1, "{}", stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let columns: Vec<usize> = stdout
+        .lines()
+        .filter(|l| l.starts_with("    ViewLayer."))
+        .map(|l| l.find(" R G B").or_else(|| l.find(" X Y Z")).or_else(|| l.find(" Z ")).unwrap())
+        .collect();
+    assert_eq!(columns.len(), 4, "{stdout}");
+    assert!(columns.iter().all(|&c| c == columns[0]), "misaligned: {columns:?}\n{stdout}");
+
+    // Outputs are byte-identical across reruns: nothing like a fresh date is written.
+    let input = super::util::write(&super::util::native_frame(16, 8, 3, &[]), dir.path(), "in.exr");
+    let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+    for out in [&a, &b] {
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "-q"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        std::thread::sleep(std::time::Duration::from_millis(1100));
+    }
+    assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(), "reruns differ");
+}

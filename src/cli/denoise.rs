@@ -28,9 +28,14 @@ pub struct DenoiseArgs {
     /// Name of the denoised layer (`NAME.R/G/B`).
     #[arg(long, default_value = "denoised", value_name = "NAME")]
     pub layer: String,
-    /// `default` (embedded), `paper`, `small`, `multiscale` (untrained presets) or a .safetensors file.
+    /// A shipped model: `default` or `small-flat` (flat KPCN: slower, sometimes better); a
+    /// .safetensors file from `kpcn train`; or, with --allow-untrained, an untrained
+    /// architecture preset (`paper`, `small`, `multiscale`) for testing.
     #[arg(long, default_value = "default", value_name = "MODEL")]
     pub model: String,
+    /// Run an untrained preset (its images are useless: it only tests the pipeline).
+    #[arg(long)]
+    pub allow_untrained: bool,
     /// Also write NAME_diffuse and NAME_specular layers; they add up to NAME exactly.
     #[arg(long)]
     pub aovs: bool,
@@ -153,6 +158,14 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             return Ok(());
         }
     }
+    let model = Model::resolve(&args.model)?;
+    if model.is_untrained() && !args.allow_untrained {
+        return Err(Usage(format!(
+            "--model {}: an untrained architecture preset ({}) gives useless images — use `default`, `small-flat` or a trained .safetensors file, or give --allow-untrained to test the pipeline with it",
+            args.model, model.description
+        ))
+        .into());
+    }
     if args.dry_run {
         // The same checks as a real run, so `-n` exits as the run would.
         let (mut missing, mut clobbered) = (0, 0);
@@ -173,7 +186,6 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    let model = Model::resolve(&args.model)?;
     if model.is_untrained() && !args.quiet {
         eprintln!(
             "kpcn: warning: model `{}` is UNTRAINED ({}): the result is not a useful denoise — use the default or a trained file",

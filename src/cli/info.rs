@@ -74,13 +74,16 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
     );
     println!("  parts       {}", fb.parts);
     println!("  channels    {}", fb.planes().len());
-    for (layer, planes) in fb.layers() {
+    let layers = fb.layers();
+    // Blender's pass names run long ("ViewLayer.Denoising Albedo"): size the column to them.
+    let width = layers.iter().map(|(l, _)| l.chars().count()).max().unwrap_or(0).max(22);
+    for (layer, planes) in layers {
         let comps: Vec<&str> =
             planes.iter().map(|p| p.name.rsplit_once('.').map_or(p.name.as_str(), |(_, c)| c)).collect();
         let bad: usize = planes.iter().map(|p| p.data.iter().filter(|v| !v.is_finite()).count()).sum();
         let bad = if bad > 0 { format!("  ({bad} NaN/Inf samples)") } else { String::new() };
         let name = if layer.is_empty() { "(root)" } else { &layer };
-        println!("    {name:<22} {:<12} {}{bad}", comps.join(" "), formats(&planes));
+        println!("    {name:<width$} {:<12} {}{bad}", comps.join(" "), formats(&planes));
     }
     if args.metadata {
         println!("  metadata");

@@ -288,7 +288,16 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
                 let out = frames_dir.join("peak-memory.exr");
                 let mut cmd = Command::new(&exe);
                 cmd.arg("denoise").arg(frame).arg("-o").arg(&out);
-                cmd.args(["--model", &m.arg, "--threads", &threads.to_string(), "-q", "--separate"]);
+                // The study chose its models (presets too, to compare): no second refusal here.
+                cmd.args([
+                    "--model",
+                    &m.arg,
+                    "--allow-untrained",
+                    "--threads",
+                    &threads.to_string(),
+                    "-q",
+                    "--separate",
+                ]);
                 let peak = run_measured(&mut cmd).with_context(|| format!("measuring {}", m.name))?.peak_mb;
                 let _ = std::fs::remove_file(out);
                 Some(peak)

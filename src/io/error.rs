@@ -13,6 +13,12 @@ pub enum IoError {
         /// OpenImageIO's error text.
         reason: String,
     },
+    /// A zero-byte file: a write that never happened or was cut off at once.
+    #[error("{}: the file is empty (0 bytes) — it was never written completely; re-render or copy it again", path.display())]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
     /// The header opened but pixels could not be decoded.
     #[error("{}: cannot read the pixels of part {subimage}: {reason} — the file is truncated or corrupt; re-render or copy it again", path.display())]
     Read {

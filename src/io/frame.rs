@@ -238,8 +238,10 @@ impl FrameReader {
     /// Opens `path` and reads its headers (no pixels yet).
     pub fn open(path: &Path) -> Result<Self, IoError> {
         let open_err = |reason: String| IoError::Open { path: path.into(), reason };
-        if !path.exists() {
-            return Err(open_err("no such file".into()));
+        match std::fs::metadata(path) {
+            Err(_) => return Err(open_err("no such file".into())),
+            Ok(m) if m.is_file() && m.len() == 0 => return Err(IoError::Empty { path: path.into() }),
+            Ok(_) => {}
         }
         let input = Input::open(path).map_err(open_err)?;
         let info0 = input.info(0).map_err(open_err)?;

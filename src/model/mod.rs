@@ -18,6 +18,11 @@ pub const FORMAT_VERSION: &str = "1";
 
 /// The embedded default model (see `models/README.md`).
 static DEFAULT_MODEL: &[u8] = include_bytes!("../../models/default.safetensors");
+/// The flat KPCN shipped beside it (`small-flat`): slower, better on some renders.
+static SMALL_FLAT_MODEL: &[u8] = include_bytes!("../../models/small.safetensors");
+
+/// Names of the trained models shipped inside the library, for `Model::resolve`.
+pub const SHIPPED: [&str; 2] = ["default", "small-flat"];
 
 /// Kernel prediction or direct prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -78,7 +83,7 @@ pub enum ModelError {
     },
     /// Unknown preset name.
     #[error(
-        "unknown model `{0}` — use `default`, `paper`, `small`, `multiscale` (untrained presets) or a .safetensors file"
+        "unknown model `{0}` — use a shipped model (`default`, `small-flat`), a .safetensors file, or an untrained preset (`paper`, `small`, `multiscale`, for testing)"
     )]
     UnknownPreset(String),
     /// A tensor computation failed.
@@ -340,11 +345,12 @@ impl Model {
         Self::from_bytes(DEFAULT_MODEL, "embedded default model")
     }
 
-    /// `default`, a preset name (`paper`, `small`, `multiscale`: untrained, Xavier seed 0) or a
-    /// file path.
+    /// A shipped model (`default`, `small-flat`), a preset name (`paper`, `small`,
+    /// `multiscale`: untrained, Xavier seed 0; see [`Model::is_untrained`]) or a file path.
     pub fn resolve(name: &str) -> Result<Model, ModelError> {
         match name {
             "default" => Self::embedded_default(),
+            "small-flat" => Self::from_bytes(SMALL_FLAT_MODEL, "shipped model small-flat"),
             "paper" => Self::xavier(Architecture::paper(Kind::Kpcn), 0),
             "small" => Self::xavier(Architecture::small(Kind::Kpcn), 0),
             "multiscale" => Self::xavier(Architecture::multiscale(), 0),

@@ -56,8 +56,10 @@ impl Names<'_> {
     }
 
     /// A variance layer: one channel, or three averaged.
+    /// Three per-channel variances (RenderMan's `mse.r/g/b`) are preferred to one, which
+    /// would otherwise match `.r` alone as a scalar; SPEC §3 averages them.
     fn variance(&self, layers: &[&str]) -> Option<Vec<String>> {
-        layers.iter().find_map(|l| self.find(l, 1).or_else(|| self.find(l, 3)))
+        layers.iter().find_map(|l| self.find(l, 3).or_else(|| self.find(l, 1)))
     }
 }
 
@@ -187,7 +189,9 @@ impl Mapping {
         for e in self.entries.iter().filter(|e| e.quantity.required()) {
             e.mean.missing_channels(&mut out);
         }
-        out.dedup();
+        // A pass can be missing for two inputs (Cycles' DiffCol: diffuse and albedo).
+        let mut seen = HashSet::new();
+        out.retain(|c| seen.insert(c.clone()));
         out
     }
 
@@ -346,5 +350,10 @@ mod tests {
         assert_eq!(m.layout, Layout::RenderMan);
         assert!(m.missing_required().is_empty(), "{:?}", m.missing_required());
         assert_eq!(m.entry_for(Quantity::Color).variance_status(), VarianceStatus::Present);
+        // All three of mse.r/g/b are averaged, not `.r` alone.
+        let three = |c: &str| ["r", "g", "b"].map(|x| format!("{c}.{x}")).to_vec();
+        assert_eq!(m.entry_for(Quantity::Color).variance, VarianceSource::Channels(three("mse")));
+        assert_eq!(m.entry_for(Quantity::Albedo).variance, VarianceSource::Channels(three("albedo_var")));
+        assert_eq!(m.entry_for(Quantity::Depth).variance, VarianceSource::Channels(vec!["zfiltered_var.r".into()]));
     }
 }
