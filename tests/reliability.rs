@@ -270,3 +270,49 @@ fn small_messages_are_right() {
     }
     assert!(std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap(), "reruns differ");
 }
+
+#[test]
+fn info_speaks_json_and_flags_non_finite_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = super::util::native_frame(8, 4, 1, &[]);
+    let mut r = fb.channel("R").unwrap().to_vec();
+    r[3] = f32::NAN;
+    r[5] = f32::INFINITY;
+    fb.insert("R", kpcn::io::SampleFormat::Float, r).unwrap();
+    let nan = super::util::write(&fb, dir.path(), "nan.exr");
+    let o = kpcn(&["info", nan.to_str().unwrap()]);
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.contains("verdict     complete") && table.contains("2 samples are NaN/Inf"), "{table}");
+
+    let garbage = dir.path().join("garbage.exr");
+    std::fs::write(&garbage, b"not an image").unwrap();
+    let o = kpcn(&["info", "--format", "json", nan.to_str().unwrap(), garbage.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "an unreadable file fails the run");
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON document");
+    assert_eq!(doc[0]["verdict"], "complete");
+    assert_eq!(doc[0]["nonfinite_samples"], 2);
+    assert_eq!(doc[0]["layout"], "native");
+    assert_eq!(doc[0]["inputs"][0]["variance"], "present");
+    assert!(doc[1]["error"].as_str().unwrap().contains("garbage.exr"), "{doc}");
+}
+
+#[test]
+fn eval_takes_the_reference_layer_from_its_own_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut reference = FrameBuffers::new(8, 4);
+    for c in ["R", "G", "B"] {
+        reference.insert(&format!("ViewLayer.Combined.{c}"), kpcn::io::SampleFormat::Float, vec![0.5; 32]).unwrap();
+    }
+    let reference = super::util::write(&reference, dir.path(), "ref.exr");
+    let mut image = FrameBuffers::new(8, 4);
+    for c in ["R", "G", "B"] {
+        image.insert(c, kpcn::io::SampleFormat::Float, vec![0.25; 32]).unwrap();
+    }
+    let image = super::util::write(&image, dir.path(), "img.exr");
+    let (r, i) = (reference.to_str().unwrap(), image.to_str().unwrap());
+    let o = kpcn(&["eval", "-r", r, i]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--reference-channels"), "{}", stderr(&o));
+    let o = kpcn(&["eval", "-r", r, i, "--reference-channels", "ViewLayer.Combined", "--format", "json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}

@@ -10,9 +10,13 @@ use std::path::{Path, PathBuf};
 /// Arguments of `kpcn eval`.
 #[derive(Debug, Args)]
 pub struct EvalArgs {
-    /// The reference (its root `R,G,B` are compared against).
+    /// The reference (by default its root `R,G,B` are compared against).
     #[arg(long, short, value_name = "REF.exr")]
     pub reference: PathBuf,
+    /// Layer of the reference to compare against: `rgb` (the root `R,G,B`, default) or a
+    /// layer name (e.g. `ViewLayer.Combined` of a Blender multilayer EXR).
+    #[arg(long, default_value = "rgb", value_name = "LAYER")]
+    pub reference_channels: String,
     /// Images to score.
     #[arg(required = true, value_name = "IN.exr")]
     pub inputs: Vec<PathBuf>,
@@ -39,7 +43,9 @@ pub enum Format {
     Csv,
 }
 
-fn rgb_names(fb: &FrameBuffers, layer: &str) -> anyhow::Result<[String; 3]> {
+/// The three channels of `layer` in `fb`; a missing one is an error naming `flag`, the
+/// option that picks the layer.
+fn rgb_names(fb: &FrameBuffers, layer: &str, flag: &str) -> anyhow::Result<[String; 3]> {
     let layer = match layer {
         "auto" if fb.channel("denoised.R").is_some() => "denoised",
         "auto" | "rgb" => "",
@@ -49,7 +55,7 @@ fn rgb_names(fb: &FrameBuffers, layer: &str) -> anyhow::Result<[String; 3]> {
     for n in &names {
         if fb.channel(n).is_none() {
             bail!(
-                "{}: no channel `{n}` — pick the layer with --channels (`kpcn info` lists them)",
+                "{}: no channel `{n}` — pick the layer with {flag} (`kpcn info` lists them)",
                 fb.display_path().display()
             );
         }
@@ -69,7 +75,7 @@ fn write_map(path: &Path, map: &[f32], w: usize, h: usize) -> anyhow::Result<()>
 /// Runs `kpcn eval`.
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let reference = FrameBuffers::read(&args.reference)?;
-    let ref_names = rgb_names(&reference, "rgb")?;
+    let ref_names = rgb_names(&reference, &args.reference_channels, "--reference-channels")?;
     let y = planes(&reference, &ref_names);
     let (w, h) = (reference.width(), reference.height());
     let mut rows: Vec<(String, String, Metrics)> = Vec::new();
@@ -84,7 +90,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 args.reference.display()
             );
         }
-        let names = rgb_names(&fb, &args.channels)?;
+        let names = rgb_names(&fb, &args.channels, "--channels")?;
         let x = planes(&fb, &names);
         if let Some(dir) = &args.error_maps {
             std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;

@@ -17,6 +17,18 @@ pub struct InfoArgs {
     /// Also list every metadata attribute.
     #[arg(long)]
     pub metadata: bool,
+    /// `table` for people; `json` (one array, an object per file) for pipelines.
+    #[arg(long, value_enum, default_value_t = InfoFormat::Table)]
+    pub format: InfoFormat,
+}
+
+/// `kpcn info` output formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum InfoFormat {
+    /// Aligned columns.
+    Table,
+    /// One JSON array, an object per file.
+    Json,
 }
 
 /// A `--layout` value.
@@ -33,6 +45,22 @@ impl std::str::FromStr for LayoutArg {
 /// Prints a report per file; fails if any file is unreadable or incomplete.
 pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
     let mut failures = 0usize;
+    if args.format == InfoFormat::Json {
+        let mut all = Vec::new();
+        for path in &args.files {
+            let doc = match FrameBuffers::read(path) {
+                Ok(fb) => json_report(&fb, args),
+                Err(e) => serde_json::json!({ "file": path, "error": e.to_string() }),
+            };
+            failures += usize::from(doc.get("error").is_some() || doc["verdict"] == "incomplete");
+            all.push(doc);
+        }
+        println!("{}", serde_json::to_string_pretty(&all)?);
+        return match failures {
+            0 => Ok(()),
+            n => Err(crate::cli::Reported(n).into()),
+        };
+    }
     for (i, path) in args.files.iter().enumerate() {
         if i > 0 {
             println!();
@@ -47,6 +75,67 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
         0 => Ok(()),
         n => Err(crate::cli::Reported(n).into()),
     }
+}
+
+/// The verdict on a mapping: `complete`, `usable` (variances estimated) or `incomplete`.
+fn verdict(mapping: &Mapping) -> &'static str {
+    if !mapping.missing_required().is_empty() {
+        "incomplete"
+    } else if mapping.estimated_variances().is_empty() {
+        "complete"
+    } else {
+        "usable"
+    }
+}
+
+/// Samples that are NaN or ±Inf, per channel.
+fn nonfinite(p: &Plane) -> usize {
+    p.data.iter().filter(|v| !v.is_finite()).count()
+}
+
+/// Everything the table shows, as JSON.
+fn json_report(fb: &FrameBuffers, args: &InfoArgs) -> serde_json::Value {
+    use serde_json::json;
+    let mapping = Mapping::for_frame(fb, args.layout.map(|l| l.0));
+    let w = &fb.window;
+    let channels: Vec<_> = fb
+        .planes()
+        .iter()
+        .map(|p| json!({ "name": p.name, "format": p.format.name(), "nonfinite": nonfinite(p) }))
+        .collect();
+    let inputs: Vec<_> = mapping
+        .entries
+        .iter()
+        .map(|e| {
+            json!({
+                "input": e.quantity.name(),
+                "required": e.quantity.required(),
+                "mean": e.mean_status().to_string(),
+                "mean_source": e.mean.to_string(),
+                "variance": e.variance_status().to_string(),
+                "variance_source": e.variance_description(),
+            })
+        })
+        .collect();
+    let mut doc = json!({
+        "file": fb.display_path(),
+        "width": fb.width(),
+        "height": fb.height(),
+        "data_window": { "x": w.x, "y": w.y },
+        "display_window": { "x": w.full_x, "y": w.full_y, "width": w.full_width, "height": w.full_height },
+        "parts": fb.parts,
+        "channels": channels,
+        "nonfinite_samples": fb.planes().iter().map(nonfinite).sum::<usize>(),
+        "layout": mapping.layout.name(),
+        "layout_detected": mapping.detected,
+        "inputs": inputs,
+        "missing": mapping.missing_required(),
+        "verdict": verdict(&mapping),
+    });
+    if args.metadata {
+        doc["metadata"] = fb.attributes.iter().map(|a| (a.name.clone(), json!(a.text))).collect();
+    }
+    doc
 }
 
 fn formats(planes: &[&Plane]) -> String {
@@ -80,7 +169,7 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
     for (layer, planes) in layers {
         let comps: Vec<&str> =
             planes.iter().map(|p| p.name.rsplit_once('.').map_or(p.name.as_str(), |(_, c)| c)).collect();
-        let bad: usize = planes.iter().map(|p| p.data.iter().filter(|v| !v.is_finite()).count()).sum();
+        let bad: usize = planes.iter().map(|p| nonfinite(p)).sum();
         let bad = if bad > 0 { format!("  ({bad} NaN/Inf samples)") } else { String::new() };
         let name = if layer.is_empty() { "(root)" } else { &layer };
         println!("    {name:<width$} {:<12} {}{bad}", comps.join(" "), formats(&planes));
@@ -108,13 +197,19 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
         }
     }
     let missing = mapping.missing_required();
+    let bad: usize = fb.planes().iter().map(nonfinite).sum();
+    let bad = if bad > 0 {
+        format!("; but {bad} samples are NaN/Inf (the denoiser treats them as 0)")
+    } else {
+        String::new()
+    };
     if missing.is_empty() {
         let estimated: Vec<&str> = mapping.estimated_variances().iter().map(|e| e.quantity.name()).collect();
         if estimated.is_empty() {
-            println!("  verdict     complete: every network input is in the file");
+            println!("  verdict     complete: every network input is in the file{bad}");
         } else {
             println!(
-                "  verdict     usable: variance of {} will be estimated (less accurate than rendered variance)",
+                "  verdict     usable: variance of {} will be estimated (less accurate than rendered variance){bad}",
                 estimated.join(", ")
             );
         }
