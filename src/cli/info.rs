@@ -1,7 +1,7 @@
 //! `kpcn info`: what a file holds and what the denoiser can use.
 
 use crate::io::layout::{Layout, Mapping, MeanStatus};
-use crate::io::{FrameBuffers, IoError, Plane};
+use crate::io::{FrameBuffers, FrameReader, IoError, SampleFormat};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -48,8 +48,8 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
     if args.format == InfoFormat::Json {
         let mut all = Vec::new();
         for path in &args.files {
-            let doc = match FrameBuffers::read(path) {
-                Ok(fb) => json_report(&fb, args),
+            let doc = match summarize(path) {
+                Ok((fb, chans)) => json_report(&fb, &chans, args),
                 Err(e) => serde_json::json!({ "file": path, "error": e.to_string() }),
             };
             failures += usize::from(doc.get("error").is_some() || doc["verdict"] == "incomplete");
@@ -65,7 +65,7 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
         if i > 0 {
             println!();
         }
-        let result = FrameBuffers::read(path).and_then(|fb| report(&fb, args));
+        let result = summarize(path).and_then(|(fb, chans)| report(&fb, &chans, args));
         if let Err(e) = result {
             eprintln!("kpcn: error: {e}");
             failures += 1;
@@ -75,6 +75,46 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
         0 => Ok(()),
         n => Err(crate::cli::Reported(n).into()),
     }
+}
+
+/// One channel as `info` reports it.
+struct Channel {
+    name: String,
+    format: SampleFormat,
+    /// Samples that are NaN or ±Inf.
+    nonfinite: usize,
+}
+
+/// A file's header and its channels' non-finite counts, read a band of rows at a time so
+/// memory stays bounded whatever the frame's size (and a forged header cannot make it
+/// allocate the size it claims: `FrameReader::open` checks that first).
+fn summarize(path: &std::path::Path) -> Result<(FrameBuffers, Vec<Channel>), IoError> {
+    let mut reader = FrameReader::open(path)?;
+    let header = reader.header().clone();
+    let mut channels: Vec<Channel> =
+        reader.channel_formats().map(|(n, f)| Channel { name: n.to_string(), format: f, nonfinite: 0 }).collect();
+    let (w, h) = (header.width(), header.height());
+    let rows = ((64usize << 20) / (4 * w.max(1) * channels.len().max(1))).max(1);
+    for a in (0..h).step_by(rows) {
+        let band = reader.read_band(None, a, a + rows)?;
+        for (c, p) in channels.iter_mut().zip(band.planes()) {
+            c.nonfinite += p.data.iter().filter(|v| !v.is_finite()).count();
+        }
+    }
+    Ok((header, channels))
+}
+
+/// Channels grouped by layer (the name before the last dot), in file order.
+fn layers(channels: &[Channel]) -> Vec<(&str, Vec<&Channel>)> {
+    let mut out: Vec<(&str, Vec<&Channel>)> = Vec::new();
+    for c in channels {
+        let layer = c.name.rsplit_once('.').map_or("", |(l, _)| l);
+        match out.iter_mut().find(|(l, _)| *l == layer) {
+            Some((_, v)) => v.push(c),
+            None => out.push((layer, vec![c])),
+        }
+    }
+    out
 }
 
 /// The verdict on a mapping: `complete`, `usable` (variances estimated) or `incomplete`.
@@ -88,21 +128,13 @@ fn verdict(mapping: &Mapping) -> &'static str {
     }
 }
 
-/// Samples that are NaN or ±Inf, per channel.
-fn nonfinite(p: &Plane) -> usize {
-    p.data.iter().filter(|v| !v.is_finite()).count()
-}
-
 /// Everything the table shows, as JSON.
-fn json_report(fb: &FrameBuffers, args: &InfoArgs) -> serde_json::Value {
+fn json_report(fb: &FrameBuffers, chans: &[Channel], args: &InfoArgs) -> serde_json::Value {
     use serde_json::json;
-    let mapping = Mapping::for_frame(fb, args.layout.map(|l| l.0));
+    let mapping = Mapping::new(chans.iter().map(|c| c.name.as_str()), args.layout.map(|l| l.0));
     let w = &fb.window;
-    let channels: Vec<_> = fb
-        .planes()
-        .iter()
-        .map(|p| json!({ "name": p.name, "format": p.format.name(), "nonfinite": nonfinite(p) }))
-        .collect();
+    let channels: Vec<_> =
+        chans.iter().map(|c| json!({ "name": c.name, "format": c.format.name(), "nonfinite": c.nonfinite })).collect();
     let inputs: Vec<_> = mapping
         .entries
         .iter()
@@ -125,7 +157,7 @@ fn json_report(fb: &FrameBuffers, args: &InfoArgs) -> serde_json::Value {
         "display_window": { "x": w.full_x, "y": w.full_y, "width": w.full_width, "height": w.full_height },
         "parts": fb.parts,
         "channels": channels,
-        "nonfinite_samples": fb.planes().iter().map(nonfinite).sum::<usize>(),
+        "nonfinite_samples": chans.iter().map(|c| c.nonfinite).sum::<usize>(),
         "layout": mapping.layout.name(),
         "layout_detected": mapping.detected,
         "inputs": inputs,
@@ -138,7 +170,7 @@ fn json_report(fb: &FrameBuffers, args: &InfoArgs) -> serde_json::Value {
     doc
 }
 
-fn formats(planes: &[&Plane]) -> String {
+fn formats(planes: &[&Channel]) -> String {
     let first = planes[0].format;
     if planes.iter().all(|p| p.format == first) {
         first.name().to_string()
@@ -147,7 +179,7 @@ fn formats(planes: &[&Plane]) -> String {
     }
 }
 
-fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
+fn report(fb: &FrameBuffers, chans: &[Channel], args: &InfoArgs) -> Result<(), IoError> {
     let w = &fb.window;
     println!("{}", fb.display_path().display());
     println!(
@@ -162,16 +194,16 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
         w.full_y
     );
     println!("  parts       {}", fb.parts);
-    println!("  channels    {}", fb.planes().len());
-    let layers = fb.layers();
+    println!("  channels    {}", chans.len());
+    let layers = layers(chans);
     // Blender's pass names run long ("ViewLayer.Denoising Albedo"): size the column to them.
     let width = layers.iter().map(|(l, _)| l.chars().count()).max().unwrap_or(0).max(22);
     for (layer, planes) in layers {
         let comps: Vec<&str> =
             planes.iter().map(|p| p.name.rsplit_once('.').map_or(p.name.as_str(), |(_, c)| c)).collect();
-        let bad: usize = planes.iter().map(|p| nonfinite(p)).sum();
+        let bad: usize = planes.iter().map(|p| p.nonfinite).sum();
         let bad = if bad > 0 { format!("  ({bad} NaN/Inf samples)") } else { String::new() };
-        let name = if layer.is_empty() { "(root)" } else { &layer };
+        let name = if layer.is_empty() { "(root)" } else { layer };
         println!("    {name:<width$} {:<12} {}{bad}", comps.join(" "), formats(&planes));
     }
     if args.metadata {
@@ -181,7 +213,7 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
         }
     }
 
-    let mapping = Mapping::for_frame(fb, args.layout.map(|l| l.0));
+    let mapping = Mapping::new(chans.iter().map(|c| c.name.as_str()), args.layout.map(|l| l.0));
     let how = if mapping.detected { "auto-detected" } else { "from --layout" };
     println!("  layout      {} ({how})", mapping.layout);
     println!("  KPCN inputs");
@@ -197,7 +229,7 @@ fn report(fb: &FrameBuffers, args: &InfoArgs) -> Result<(), IoError> {
         }
     }
     let missing = mapping.missing_required();
-    let bad: usize = fb.planes().iter().map(nonfinite).sum();
+    let bad: usize = chans.iter().map(|c| c.nonfinite).sum();
     let bad = if bad > 0 {
         format!("; but {bad} samples are NaN/Inf (the denoiser treats them as 0)")
     } else {

@@ -13,6 +13,14 @@ pub enum IoError {
         /// OpenImageIO's error text.
         reason: String,
     },
+    /// A header no render has (a corrupt or forged file): refused before allocating.
+    #[error("{}: {what}, beyond kpcn's limits (16384x16384 pixels, 4096 channels) — the file is corrupt or not a render", path.display())]
+    Implausible {
+        /// The file.
+        path: PathBuf,
+        /// What the header claims.
+        what: String,
+    },
     /// A zero-byte file: a write that never happened or was cut off at once.
     #[error("{}: the file is empty (0 bytes) — it was never written completely; re-render or copy it again", path.display())]
     Empty {

@@ -211,6 +211,17 @@ impl FrameBuffers {
     pub fn read(path: &Path) -> Result<Self, IoError> {
         let mut reader = FrameReader::open(path)?;
         let h = reader.header().height;
+        // Whole frames are allocated at once: one whose size no compression of this file
+        // could hold (ZIP inflates at most ~1000:1) is a corrupt header, refused before
+        // asking for memory it would never fill.
+        let bytes = (reader.header().width * h).saturating_mul(reader.channels.len()).saturating_mul(4);
+        let file = std::fs::metadata(path).map(|m| m.len() as usize).unwrap_or(0);
+        if bytes > (1 << 30) && bytes / 1100 > file {
+            return Err(IoError::Implausible {
+                path: path.into(),
+                what: format!("its header claims {} MB of pixels in a {} KB file", bytes >> 20, file >> 10),
+            });
+        }
         reader.read_band(None, 0, h)
     }
 }
@@ -234,6 +245,24 @@ pub struct FrameReader {
     subimages: Vec<SubimageInfo>,
 }
 
+/// The largest frame kpcn reads: 16384×16384 pixels (a 16K square; renders are smaller).
+pub const MAX_PIXELS: usize = 1 << 28;
+/// The most channels in one part.
+pub const MAX_CHANNELS: usize = 4096;
+
+/// Refuses a header whose size no render has, before anything is allocated from it: a
+/// corrupt or forged header claiming 200000×200000 would otherwise ask for 160 GB.
+fn check_size(path: &Path, w: usize, h: usize, channels: usize) -> Result<(), IoError> {
+    let pixels = w.checked_mul(h).unwrap_or(usize::MAX);
+    if pixels > MAX_PIXELS || w > MAX_PIXELS || h > MAX_PIXELS || channels > MAX_CHANNELS {
+        return Err(IoError::Implausible {
+            path: path.into(),
+            what: format!("its header claims {w}x{h} pixels and {channels} channels"),
+        });
+    }
+    Ok(())
+}
+
 impl FrameReader {
     /// Opens `path` and reads its headers (no pixels yet).
     pub fn open(path: &Path) -> Result<Self, IoError> {
@@ -245,6 +274,7 @@ impl FrameReader {
         }
         let input = Input::open(path).map_err(open_err)?;
         let info0 = input.info(0).map_err(open_err)?;
+        check_size(path, info0.width, info0.height, info0.nchannels)?;
         let mut header = FrameBuffers::new(info0.width, info0.height);
         header.window = Window {
             x: info0.x,
@@ -266,6 +296,7 @@ impl FrameReader {
             if info.deep {
                 return Err(IoError::Deep { path: path.into(), subimage: s });
             }
+            check_size(path, info.width, info.height, info.nchannels)?;
             if (info.width, info.height) != (info0.width, info0.height) {
                 return Err(IoError::PartSizeMismatch {
                     path: path.into(),
