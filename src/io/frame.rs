@@ -253,7 +253,7 @@ pub const MAX_CHANNELS: usize = 4096;
 /// Refuses a header whose size no render has, before anything is allocated from it: a
 /// corrupt or forged header claiming 200000×200000 would otherwise ask for 160 GB.
 fn check_size(path: &Path, w: usize, h: usize, channels: usize) -> Result<(), IoError> {
-    let pixels = w.checked_mul(h).unwrap_or(usize::MAX);
+    let pixels = w.saturating_mul(h);
     if pixels > MAX_PIXELS || w > MAX_PIXELS || h > MAX_PIXELS || channels > MAX_CHANNELS {
         return Err(IoError::Implausible {
             path: path.into(),
