@@ -391,7 +391,7 @@ fn mutated_exrs_never_crash_or_exhaust_memory() {
                 let Some(at) = d.windows(name.len()).position(|w| w == name) else { continue };
                 let at = at + name.len() + 4;
                 for (j, v) in window.iter().enumerate() {
-                    d[at + 4 * j..at + 4 * j + 4].copy_from_slice(&v.to_le_bytes());
+                    d[at + 4 * j..at + 4 * j + 4].copy_from_slice(&i32::to_le_bytes(*v));
                 }
                 cases.push((format!("{k}-window-{i}-{}", name.len()), d));
             }
