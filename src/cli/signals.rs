@@ -26,7 +26,10 @@ pub fn exit_on_signals() {
                 crate::io::atomic::remove_live_temp_files();
                 let what = if sig == libc::SIGINT { "interrupted" } else { "terminated" };
                 eprintln!("kpcn: {what}; partial outputs removed");
-                std::process::exit(128 + sig);
+                // _exit, not exit: other threads are still inside OpenImageIO, whose static
+                // destructors exit() would run under their feet.
+                // SAFETY: ends the process at once; nothing is left to clean up.
+                unsafe { libc::_exit(128 + sig) };
             }
             std::thread::sleep(Duration::from_millis(20));
         }
