@@ -420,3 +420,51 @@ fn mutated_exrs_never_crash_or_exhaust_memory() {
     assert!(failures.is_empty(), "{} of {} cases crashed:\n{}", failures.len(), cases.len(), failures.join("\n"));
     eprintln!("{} mutated files in {:.1} s", cases.len(), t.elapsed().as_secs_f64());
 }
+
+/// Hostile values: 1e30 in albedo and NaN in colour are repaired (clamped to the physical
+/// range, or set to 0), said once per input with the count, and the output stays finite
+/// and inside the input's finite range.
+#[test]
+fn hostile_values_are_repaired_and_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    // A real render (consistent passes), so its output range is meaningful.
+    let mut fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
+    let (w, h) = (fb.width(), fb.height());
+    let mut set = |name: &str, f: &dyn Fn(usize, usize) -> Option<f32>| {
+        let mut v = fb.channel(name).unwrap().to_vec();
+        for y in 0..h {
+            for x in 0..w {
+                if let Some(s) = f(x, y) {
+                    v[y * w + x] = s;
+                }
+            }
+        }
+        fb.insert(name, kpcn::io::SampleFormat::Float, v).unwrap();
+    };
+    for c in ["albedo.R", "albedo.G", "albedo.B"] {
+        set(c, &|x, y| (x < 90 && y < 60).then_some(1e30));
+    }
+    set("R", &|x, y| (y == 70 && x < 30).then_some(f32::NAN));
+    set("normal.R", &|x, _| (x == 159).then_some(7.0));
+    let input = super::util::write(&fb, dir.path(), "hostile.exr");
+    let out = dir.path().join("out.exr");
+    let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(err.contains("albedo: 16200 samples outside [0, 1] clamped"), "{err}");
+    assert!(err.contains("color: 30 NaN/Inf samples set to 0"), "{err}");
+    assert!(err.contains("normal: 96 samples outside [-1, 1] clamped"), "{err}");
+    let d = FrameBuffers::read(&out).unwrap();
+    let max_in = ["R", "G", "B"]
+        .iter()
+        .flat_map(|c| fb.channel(c).unwrap().iter().copied())
+        .filter(|v| v.is_finite())
+        .fold(0f32, f32::max);
+    for c in ["denoised.R", "denoised.G", "denoised.B"] {
+        let v = d.channel(c).unwrap();
+        assert!(v.iter().all(|x| x.is_finite() && *x >= 0.0), "{c}");
+        let max_out = v.iter().copied().fold(0f32, f32::max);
+        // Before, 1e30 albedo gave outputs up to 4.8e14.
+        assert!(max_out <= max_in, "{c}: {max_out} above the input's largest {max_in}");
+    }
+}

@@ -292,7 +292,20 @@ fn denoise_file(
     };
     let (w, h) = job.size();
     let band = job.band_rows(denoiser, &opts);
-    job.run(denoiser, output, &opts, progress)?;
+    let report = job.run(denoiser, output, &opts, progress)?;
+    if !args.quiet {
+        // Said every time, not only with -v: hostile values change the image.
+        for (name, range, r) in &report.repairs {
+            let mut what = Vec::new();
+            if r.nonfinite > 0 {
+                what.push(format!("{} NaN/Inf samples set to 0", r.nonfinite));
+            }
+            if r.out_of_range > 0 {
+                what.push(format!("{} samples outside {range} clamped", r.out_of_range));
+            }
+            bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
+        }
+    }
     if args.verbose {
         let tile = denoiser.tile_size(w, band);
         bar.suspend(|| {

@@ -60,6 +60,14 @@ pub enum FileError {
     },
 }
 
+/// What [`FileJob::run`] saw on the way: the inputs' repaired samples, per input (name,
+/// physical range, counts), over the whole frame.
+#[derive(Debug, Clone, Default)]
+pub struct FileReport {
+    /// Inputs with repaired samples.
+    pub repairs: Vec<(&'static str, &'static str, features::Repairs)>,
+}
+
 /// One input file, opened and mapped, ready to denoise.
 pub struct FileJob {
     reader: FrameReader,
@@ -111,7 +119,7 @@ impl FileJob {
         output: &Path,
         opts: &FileOptions,
         progress: &dyn Fn(Progress) -> bool,
-    ) -> Result<(), FileError> {
+    ) -> Result<FileReport, FileError> {
         let (w, h) = self.size();
         let path = self.reader.header().display_path();
         if w == 0 || h == 0 {
@@ -151,12 +159,22 @@ impl FileJob {
         let tiles_in = |a: usize, b: usize| tile::plan(w, b - a, denoiser.tile_size(w, b - a)).len();
         let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
         let mut done = 0;
+        let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
         for &(a, b) in &bands {
             let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
             // Context rows need only the network inputs; the copy needs every channel.
             let names = if opts.separate { Some(needed.as_slice()) } else { None };
             let fb = self.reader.read_band(names, c0, c1)?;
             let inputs = self.mapping.extract(&fb)?;
+            for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
+                match totals.iter_mut().find(|t| t.0 == name) {
+                    Some(t) => {
+                        t.2.nonfinite += r.nonfinite;
+                        t.2.out_of_range += r.out_of_range;
+                    }
+                    None => totals.push((name, range, r)),
+                }
+            }
             let f = denoiser.features(&inputs, max_depth);
             drop(inputs);
             let step = |p: Progress| progress(Progress { done: done + p.done, total });
@@ -177,7 +195,8 @@ impl FileJob {
             writer.write_band(&planes, b - a)?;
         }
         writer.commit()?;
-        Ok(())
+        totals.retain(|t| t.2 != features::Repairs::default());
+        Ok(FileReport { repairs: totals })
     }
 
     /// The largest finite depth of the whole frame, reading only the depth channels.

@@ -13,7 +13,7 @@ use candle_core::{Device, Tensor};
 
 mod file;
 
-pub use file::{FileError, FileJob, FileOptions};
+pub use file::{FileError, FileJob, FileOptions, FileReport};
 
 /// ŝ is clamped below this before `exp` so the specular output stays finite.
 const MAX_LOG_SPECULAR: f32 = 80.0;

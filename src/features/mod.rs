@@ -119,6 +119,47 @@ pub fn log_specular(s: &[f32]) -> Vec<f32> {
     s.par_iter().map(|&v| v.max(0.0).ln_1p()).collect()
 }
 
+/// Samples of one input that preprocessing had to repair.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Repairs {
+    /// NaN or ±Inf, replaced by 0.
+    pub nonfinite: usize,
+    /// Finite but outside the input's physical range, clamped into it.
+    pub out_of_range: usize,
+}
+
+/// What [`Features`] repairs in each input, counted over rows `rows` of `k` (the inner rows
+/// of a band, so that a streamed frame counts each row once): NaN/Inf in every input, and
+/// values outside the physical range of albedo [0, 1], normal [−1, 1] and depth [0, ∞).
+pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, &'static str, Repairs); 6] {
+    let span = rows.start * k.width..rows.end.min(k.height) * k.width;
+    let count = |planes: &[&Vec<f32>], lo: f32, hi: f32| {
+        let mut r = Repairs::default();
+        for p in planes {
+            for &v in &p[span.clone()] {
+                if !v.is_finite() {
+                    r.nonfinite += 1;
+                } else if v < lo || v > hi {
+                    r.out_of_range += 1;
+                }
+            }
+        }
+        r
+    };
+    fn all(p: &[Vec<f32>; 3]) -> [&Vec<f32>; 3] {
+        [&p[0], &p[1], &p[2]]
+    }
+    let inf = f32::INFINITY;
+    [
+        ("color", "", count(&all(&k.color), -inf, inf)),
+        ("diffuse", "", count(&all(&k.diffuse), -inf, inf)),
+        ("specular", "", count(&all(&k.specular), -inf, inf)),
+        ("albedo", "[0, 1]", count(&all(&k.albedo), 0.0, 1.0)),
+        ("normal", "[-1, 1]", count(&all(&k.normal), -1.0, 1.0)),
+        ("depth", "[0, inf)", count(&[&k.depth], 0.0, inf)),
+    ]
+}
+
 impl Features {
     /// Preprocesses one frame.
     pub fn new(k: &KpcnInputs) -> Features {
@@ -130,8 +171,9 @@ impl Features {
     pub fn with_max_depth(k: &KpcnInputs, max_depth: f32) -> Features {
         let (w, h) = (k.width, k.height);
         let n = w * h;
-        // Reflectance is never negative; clamping also keeps albedo + ε away from 0.
-        let albedo = clean3(&k.albedo).map(|p| p.into_par_iter().map(|a| a.max(0.0)).collect::<Vec<f32>>());
+        // Reflectance lies in [0, 1] (SPEC §3); clamping also keeps albedo + ε away from 0,
+        // and a hostile 1e30 from scaling the output (recomposition uses this albedo).
+        let albedo = clean3(&k.albedo).map(|p| p.into_par_iter().map(|a| a.clamp(0.0, 1.0)).collect::<Vec<f32>>());
         let diffuse = clean3(&k.diffuse);
         let specular = clean3(&k.specular);
 
@@ -167,7 +209,7 @@ impl Features {
             height: h,
             d_tilde: std::array::from_fn(|c| clean(&demodulate(&diffuse[c], &albedo[c]))),
             s_tilde: std::array::from_fn(|c| log_specular(&specular[c])),
-            normal: clean3(&k.normal),
+            normal: clean3(&k.normal).map(|p| p.into_par_iter().map(|v| v.clamp(-1.0, 1.0)).collect::<Vec<f32>>()),
             albedo,
             depth,
             d_variance,
