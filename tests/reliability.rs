@@ -468,3 +468,58 @@ fn hostile_values_are_repaired_and_reported() {
         assert!(max_out <= max_in, "{c}: {max_out} above the input's largest {max_in}");
     }
 }
+
+/// A Blender multilayer file with view layers `A` and `B` (different content).
+fn two_view_layers(dir: &Path) -> PathBuf {
+    let (w, h) = (24, 16);
+    let mut fb = FrameBuffers::new(w, h);
+    let mut rng = super::util::Rng(5);
+    for vl in ["A", "B"] {
+        for (pass, comps) in [
+            ("Combined", &["R", "G", "B"][..]),
+            ("DiffDir", &["R", "G", "B"]),
+            ("DiffInd", &["R", "G", "B"]),
+            ("DiffCol", &["R", "G", "B"]),
+            ("Normal", &["X", "Y", "Z"]),
+            ("Depth", &["Z"]),
+        ] {
+            for c in comps {
+                let v: Vec<f32> = (0..w * h).map(|_| rng.uniform_f32() * if vl == "A" { 1.0 } else { 0.5 }).collect();
+                fb.insert(&format!("{vl}.{pass}.{c}"), kpcn::io::SampleFormat::Float, v).unwrap();
+            }
+        }
+    }
+    super::util::write(&fb, dir, "layers.exr")
+}
+
+#[test]
+fn blender_view_layers_are_chosen_named_and_all_denoised() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = two_view_layers(dir.path());
+    let i = input.to_str().unwrap();
+    let out = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    let o = kpcn(&["denoise", i, "-o", &out("a.exr")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("denoising view layer `A` of 2 (A, B)"), "{}", stderr(&o));
+    let a = FrameBuffers::read(Path::new(&out("a.exr"))).unwrap();
+    assert!(a.channel("A.Denoised.R").is_some() && a.channel("denoised.R").is_none(), "named for Blender");
+
+    let o = kpcn(&["denoise", i, "-o", &out("b.exr"), "--view-layer", "B", "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let b = FrameBuffers::read(Path::new(&out("b.exr"))).unwrap();
+    assert!(b.channel("B.Denoised.R").is_some() && b.channel("A.Denoised.R").is_none());
+
+    let o = kpcn(&["denoise", i, "-o", &out("all.exr"), "--view-layer", "all", "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let all = FrameBuffers::read(Path::new(&out("all.exr"))).unwrap();
+    for (one, layer) in [(&a, "A.Denoised.G"), (&b, "B.Denoised.G")] {
+        assert_eq!(all.channel(layer), one.channel(layer), "{layer}: the same as denoising that layer alone");
+    }
+    assert_ne!(all.channel("A.Denoised.G"), all.channel("B.Denoised.G"));
+
+    let o = kpcn(&["info", i]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("view layer  A (of 2: A, B)"));
+    let o = kpcn(&["denoise", i, "-o", &out("c.exr"), "--view-layer", "C"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("no view layer `C` — the file has A, B"), "{}", stderr(&o));
+}

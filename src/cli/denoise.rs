@@ -25,9 +25,15 @@ pub struct DenoiseArgs {
     /// Frames of a sequence: 1-100, 1-100x5, 1,3,5 (default: every frame whose file exists).
     #[arg(long, value_name = "LIST")]
     pub frames: Option<String>,
-    /// Name of the denoised layer (`NAME.R/G/B`).
-    #[arg(long, default_value = "denoised", value_name = "NAME")]
-    pub layer: String,
+    /// Name of the denoised layer (`NAME.R/G/B`). Default: `denoised`, or for Blender
+    /// files `<ViewLayer>.Denoised`, which Blender's compositor lists as a pass.
+    #[arg(long, value_name = "NAME")]
+    pub layer: Option<String>,
+    /// Blender view layer to denoise (Cycles layout): a name, or `all` to denoise each one
+    /// into its own `<ViewLayer>.Denoised`. Default: the first by name (said when there
+    /// are several).
+    #[arg(long, value_name = "NAME|all")]
+    pub view_layer: Option<String>,
     /// A shipped model: `default` or `small-flat` (flat KPCN: slower, sometimes better); a
     /// .safetensors file from `kpcn train`; or, with --allow-untrained, an untrained
     /// architecture preset (`paper`, `small`, `multiscale`) for testing.
@@ -147,6 +153,12 @@ fn check_outputs(jobs: &[(PathBuf, PathBuf)], in_place: bool) -> anyhow::Result<
 /// Runs `kpcn denoise`.
 pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     let mut jobs = jobs(args)?;
+    if args.view_layer.as_deref() == Some("all") && args.separate {
+        return Err(Usage("--view-layer all adds each layer to a copy of the input: drop --separate".into()).into());
+    }
+    if args.view_layer.as_deref() == Some("all") && args.layer.is_some() {
+        return Err(Usage("--view-layer all names each result <ViewLayer>.Denoised: drop --layer".into()).into());
+    }
     check_outputs(&jobs, args.in_place)?;
     if args.skip_existing {
         let before = jobs.len();
@@ -264,9 +276,55 @@ fn denoise_file(
     warned: &mut bool,
     bar: &ProgressBar,
 ) -> anyhow::Result<()> {
+    let layout = args.layout.map(|l| l.0);
+    let layers: Vec<Option<String>> = match args.view_layer.as_deref() {
+        Some("all") => {
+            let all = FileJob::open(input, layout)?.mapping().view_layers.clone();
+            if all.is_empty() { vec![None] } else { all.into_iter().map(Some).collect() }
+        }
+        Some(l) => vec![Some(l.to_string())],
+        None => vec![None],
+    };
+    for (i, layer) in layers.iter().enumerate() {
+        // Later view layers are added to the output written by the first, in place.
+        let source = if i == 0 { input } else { output };
+        denoise_view_layer(denoiser, args, source, output, layer.as_deref(), i == 0, progress, warned, bar)?;
+    }
+    Ok(())
+}
+
+/// One view layer (or the only input) of `input` into `output`; `first` is false when
+/// `output` already holds an earlier view layer's result.
+#[allow(clippy::too_many_arguments)]
+fn denoise_view_layer(
+    denoiser: &Denoiser,
+    args: &DenoiseArgs,
+    input: &Path,
+    output: &Path,
+    view_layer: Option<&str>,
+    first: bool,
+    progress: &dyn Fn(Progress) -> bool,
+    warned: &mut bool,
+    bar: &ProgressBar,
+) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
-    let job = FileJob::open(input, args.layout.map(|l| l.0))?;
+    let job = FileJob::open_view_layer(input, args.layout.map(|l| l.0), view_layer)?;
     let mapping = job.mapping().clone();
+    if let (Some(chosen), true) = (&mapping.view_layer, mapping.view_layers.len() > 1 && !args.quiet) {
+        bar.suspend(|| {
+            eprintln!(
+                "kpcn: note: {}: denoising view layer `{chosen}` of {} ({}); --view-layer NAME or all picks",
+                input.display(),
+                mapping.view_layers.len(),
+                mapping.view_layers.join(", ")
+            )
+        });
+    }
+    let layer = match (&args.layer, &mapping.view_layer) {
+        (Some(l), _) => l.clone(),
+        (None, Some(v)) => format!("{v}.Denoised"),
+        (None, None) => "denoised".into(),
+    };
     let estimated: Vec<String> = mapping
         .estimated_variances()
         .iter()
@@ -284,10 +342,10 @@ fn denoise_file(
         *warned = true;
     }
     let opts = FileOptions {
-        layer: args.layer.clone(),
+        layer,
         aovs: args.aovs,
         separate: args.separate,
-        write: WriteOptions { compression: None, no_clobber: args.no_clobber },
+        write: WriteOptions { compression: None, no_clobber: args.no_clobber && first },
         band_rows: None,
     };
     let (w, h) = job.size();

@@ -160,6 +160,8 @@ fn json_report(fb: &FrameBuffers, chans: &[Channel], args: &InfoArgs) -> serde_j
         "nonfinite_samples": chans.iter().map(|c| c.nonfinite).sum::<usize>(),
         "layout": mapping.layout.name(),
         "layout_detected": mapping.detected,
+        "view_layer": mapping.view_layer,
+        "view_layers": mapping.view_layers,
         "inputs": inputs,
         "missing": mapping.missing_required(),
         "verdict": verdict(&mapping),
@@ -216,6 +218,9 @@ fn report(fb: &FrameBuffers, chans: &[Channel], args: &InfoArgs) -> Result<(), I
     let mapping = Mapping::new(chans.iter().map(|c| c.name.as_str()), args.layout.map(|l| l.0));
     let how = if mapping.detected { "auto-detected" } else { "from --layout" };
     println!("  layout      {} ({how})", mapping.layout);
+    if let Some(v) = &mapping.view_layer {
+        println!("  view layer  {v} (of {}: {})", mapping.view_layers.len(), mapping.view_layers.join(", "));
+    }
     println!("  KPCN inputs");
     for e in &mapping.entries {
         let q = e.quantity;

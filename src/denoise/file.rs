@@ -84,8 +84,28 @@ impl FileJob {
     /// Opens `input` and maps its channels (`layout`, or detected). Fails now, before any
     /// output exists, when a required input is missing.
     pub fn open(input: &Path, layout: Option<Layout>) -> Result<FileJob, FileError> {
+        Self::open_view_layer(input, layout, None)
+    }
+
+    /// [`FileJob::open`] reading Blender view layer `view_layer` (Cycles layout) rather
+    /// than the first one by name; an error lists the file's view layers when it lacks it.
+    pub fn open_view_layer(
+        input: &Path,
+        layout: Option<Layout>,
+        view_layer: Option<&str>,
+    ) -> Result<FileJob, FileError> {
         let reader = FrameReader::open(input)?;
-        let mapping = Mapping::new(reader.channel_names(), layout);
+        // View layers are Blender's: asking for one means the Cycles layout.
+        let layout = if view_layer.is_some() { layout.or(Some(Layout::Cycles)) } else { layout };
+        let mapping = Mapping::for_view_layer(reader.channel_names(), layout, view_layer);
+        if let Some(l) = view_layer.filter(|l| !mapping.view_layers.iter().any(|v| v == l)) {
+            return Err(IoError::NoSuchViewLayer {
+                path: input.into(),
+                name: l.into(),
+                available: mapping.view_layers.clone(),
+            }
+            .into());
+        }
         mapping.check(input)?;
         Ok(FileJob { reader, mapping })
     }

@@ -21,6 +21,16 @@ pub enum IoError {
         /// What the header claims.
         what: String,
     },
+    /// A Blender view layer asked for is not in the file.
+    #[error("{}: no view layer `{name}` — the file has {}", path.display(), if available.is_empty() { "none".to_string() } else { available.join(", ") })]
+    NoSuchViewLayer {
+        /// The file.
+        path: PathBuf,
+        /// The layer asked for.
+        name: String,
+        /// The file's view layers.
+        available: Vec<String>,
+    },
     /// A zero-byte file: a write that never happened or was cut off at once.
     #[error("{}: the file is empty (0 bytes) — it was never written completely; re-render or copy it again", path.display())]
     Empty {

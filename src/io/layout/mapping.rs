@@ -16,6 +16,11 @@ pub struct Mapping {
     pub detected: bool,
     /// One entry per quantity, in [`Quantity::ALL`] order.
     pub entries: Vec<Entry>,
+    /// The Blender view layer read (Cycles layout), e.g. `ViewLayer`; empty for files
+    /// without view-layer prefixes.
+    pub view_layer: Option<String>,
+    /// Every view layer in the file (Cycles layout), in name order.
+    pub view_layers: Vec<String>,
 }
 
 const RGB_SUFFIXES: [[&str; 3]; 4] = [["R", "G", "B"], ["r", "g", "b"], ["X", "Y", "Z"], ["x", "y", "z"]];
@@ -74,11 +79,22 @@ fn bx(s: Source) -> Box<Source> {
 impl Mapping {
     /// Applies `layout` (or the best-matching one when `None`) to a file's channels.
     pub fn new<'a>(channels: impl IntoIterator<Item = &'a str>, layout: Option<Layout>) -> Mapping {
+        Self::for_view_layer(channels, layout, None)
+    }
+
+    /// [`Mapping::new`] reading Blender view layer `view_layer` (Cycles layout) instead of
+    /// the first one by name. A layer the file lacks leaves its passes missing (see
+    /// [`Mapping::view_layers`]).
+    pub fn for_view_layer<'a>(
+        channels: impl IntoIterator<Item = &'a str>,
+        layout: Option<Layout>,
+        view_layer: Option<&str>,
+    ) -> Mapping {
         let names = Names(channels.into_iter().collect());
         match layout {
-            Some(l) => Self::build(&names, l, false),
+            Some(l) => Self::build(&names, l, false, view_layer),
             None => {
-                let candidates = Layout::ALL.map(|l| Self::build(&names, l, true));
+                let candidates = Layout::ALL.map(|l| Self::build(&names, l, true, view_layer));
                 let score = |m: &Mapping| m.entries.iter().filter(|e| !e.mean.is_missing()).count();
                 let best = candidates.iter().map(score).max().unwrap_or(0);
                 // Ties go to the earliest (native first).
@@ -92,13 +108,33 @@ impl Mapping {
         Self::new(fb.channel_names(), layout)
     }
 
-    fn build(n: &Names, layout: Layout, detected: bool) -> Mapping {
-        let entries = match layout {
-            Layout::Native => Self::native(n),
-            Layout::Cycles => Self::cycles(n),
-            Layout::RenderMan => Self::renderman(n),
+    fn build(n: &Names, layout: Layout, detected: bool, view_layer: Option<&str>) -> Mapping {
+        let view_layers = Self::cycles_view_layers(n);
+        let (entries, view_layer) = match layout {
+            Layout::Native => (Self::native(n), None),
+            Layout::Cycles => {
+                // The first view layer in name order, so the choice does not depend on hashing.
+                let chosen = view_layer.map(str::to_string).or_else(|| view_layers.first().cloned());
+                (Self::cycles(n, chosen.as_deref()), chosen)
+            }
+            Layout::RenderMan => (Self::renderman(n), None),
         };
-        Mapping { layout, detected, entries }
+        let view_layers = if layout == Layout::Cycles { view_layers } else { Vec::new() };
+        Mapping { layout, detected, entries, view_layer, view_layers }
+    }
+
+    /// Prefixes of Blender's passes (`ViewLayer` of `ViewLayer.Combined.R`), sorted;
+    /// empty when passes have no prefix.
+    fn cycles_view_layers(n: &Names) -> Vec<String> {
+        let mut layers: Vec<String> =
+            n.0.iter()
+                .filter_map(|c| ["Combined.R", "DiffDir.R", "Diffuse Direct.R"].iter().find_map(|p| c.strip_suffix(p)))
+                .filter_map(|p| p.strip_suffix('.'))
+                .map(str::to_string)
+                .collect();
+        layers.sort();
+        layers.dedup();
+        layers
     }
 
     fn entry(quantity: Quantity, mean: Source, variance: Option<Vec<String>>, half: Option<Vec<String>>) -> Entry {
@@ -136,15 +172,14 @@ impl Mapping {
             .collect()
     }
 
-    fn cycles(n: &Names) -> Vec<Entry> {
-        // The view-layer prefix, e.g. "ViewLayer." (empty for single-layer files).
-        // The first view layer in name order, so the choice does not depend on hashing.
-        let prefix =
-            n.0.iter()
-                .filter_map(|c| ["Combined.R", "DiffDir.R", "Diffuse Direct.R"].iter().find_map(|p| c.strip_suffix(p)))
-                .min()
-                .unwrap_or("ViewLayer.")
-                .to_string();
+    fn cycles(n: &Names, view_layer: Option<&str>) -> Vec<Entry> {
+        // The view-layer prefix, e.g. "ViewLayer." (empty for files without prefixes).
+        let unprefixed = n.0.contains("Combined.R") || n.0.contains("DiffDir.R");
+        let prefix = match view_layer {
+            Some(l) => format!("{l}."),
+            None if unprefixed => String::new(),
+            None => "ViewLayer.".into(),
+        };
         let pass =
             |short: &str, long: &str, k: usize| n.source(&[&format!("{prefix}{short}"), &format!("{prefix}{long}")], k);
         let combined = pass("Combined", "Combined", 3);
