@@ -523,3 +523,40 @@ fn blender_view_layers_are_chosen_named_and_all_denoised() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("no view layer `C` — the file has A, B"), "{}", stderr(&o));
 }
+
+/// A multi-part file keeps its parts, their names and channels; the denoised layer joins
+/// the part that holds the beauty, and equals the single-part result. Streamed in several
+/// bands, so every part is written band by band.
+#[test]
+fn multi_part_files_keep_their_parts() {
+    use kpcn::io::{FrameReader, Part, WriteOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let fb = super::util::native_frame(24, 40, 4, &[]);
+    let names: Vec<&str> = fb.channel_names().collect();
+    // The auxiliaries first, so the beauty is not part 0.
+    let (beauty, aux): (Vec<&str>, Vec<&str>) = names.iter().partition(|n| !n.contains('.'));
+    let parts = [Part { name: "aux", channels: aux.clone() }, Part { name: "beauty", channels: beauty.clone() }];
+    let multi = dir.path().join("multi.exr");
+    fb.write_parts(&multi, &parts, &WriteOptions::default()).unwrap();
+    let single = super::util::write(&fb, dir.path(), "single.exr");
+    let (mo, so) = (dir.path().join("mo.exr"), dir.path().join("so.exr"));
+    for (i, o) in [(&multi, &mo), (&single, &so)] {
+        let r = kpcn(&["denoise", i.to_str().unwrap(), "-o", o.to_str().unwrap(), "-q", "--max-memory", "16"]);
+        assert!(r.status.success(), "{}", stderr(&r));
+    }
+    let out = FrameReader::open(&mo).unwrap().parts();
+    assert_eq!(out.iter().map(|p| p.name.as_str()).collect::<Vec<_>>(), ["aux", "beauty"]);
+    // OpenEXR stores a part's channels in name order: compare sorted.
+    let sorted = |mut v: Vec<String>| {
+        v.sort();
+        v
+    };
+    let in_part = |p: usize| sorted(out[p].channels.iter().map(|c| c.1.clone()).collect());
+    let owned = |v: &[&str]| sorted(v.iter().map(|s| s.to_string()).collect());
+    assert_eq!(in_part(0), owned(&aux));
+    assert_eq!(in_part(1), owned(&[&beauty[..], &["denoised.R", "denoised.G", "denoised.B"]].concat()));
+    let (m, s) = (FrameBuffers::read(&mo).unwrap(), FrameBuffers::read(&so).unwrap());
+    for c in names.iter().chain(&["denoised.R", "denoised.G", "denoised.B"]) {
+        assert_eq!(m.channel(c), s.channel(c), "{c}");
+    }
+}

@@ -153,66 +153,107 @@ impl FileJob {
         // The depth scale is a whole-frame statistic: one pass over the depth channel.
         let max_depth = if bands.len() == 1 { None } else { Some(self.max_depth(band)?) };
 
-        // Output channels: the input's (a same-named one is replaced in place), then the new ones.
+        // Output parts: the input's, each with its channels and name (a same-named channel
+        // is replaced in place); the new layers join the part that holds the beauty. With
+        // `separate`, one part of only the new layers.
         let new_names = new_layer_names(&opts.layer, opts.aovs);
-        let mut channels: Vec<(String, SampleFormat, Src)> = Vec::new();
-        if !opts.separate {
-            for (name, format) in self.reader.channel_formats() {
-                match new_names.iter().position(|n| n == name) {
-                    Some(k) => channels.push((name.into(), SampleFormat::Float, Src::New(k))),
-                    None => channels.push((name.into(), format, Src::Input(name.into()))),
+        let color = self.mapping.entry_for(Quantity::Color).mean_channels();
+        let input_parts = self.reader.parts();
+        let beauty =
+            input_parts.iter().position(|p| p.channels.iter().any(|c| color.first() == Some(&c.0))).unwrap_or(0);
+        let mut parts: Vec<(String, Vec<(String, SampleFormat, Src)>)> = Vec::new();
+        for (i, part) in input_parts.iter().enumerate() {
+            if opts.separate && i != beauty {
+                continue;
+            }
+            let mut channels: Vec<(String, SampleFormat, Src)> = Vec::new();
+            if !opts.separate {
+                for (name, in_part, format) in &part.channels {
+                    match (i == beauty).then(|| new_names.iter().position(|n| n == in_part)).flatten() {
+                        Some(k) => channels.push((in_part.clone(), SampleFormat::Float, Src::New(k))),
+                        None => channels.push((in_part.clone(), *format, Src::Input(name.clone()))),
+                    }
                 }
             }
-        }
-        for (k, n) in new_names.iter().enumerate() {
-            if !channels.iter().any(|(name, ..)| name == n) {
-                channels.push((n.clone(), SampleFormat::Float, Src::New(k)));
+            if i == beauty {
+                for (k, n) in new_names.iter().enumerate() {
+                    if !channels.iter().any(|(name, ..)| name == n) {
+                        channels.push((n.clone(), SampleFormat::Float, Src::New(k)));
+                    }
+                }
             }
+            let name = if opts.separate { String::new() } else { part.name.clone() };
+            parts.push((name, channels));
         }
+        let beauty_out = if opts.separate { 0 } else { beauty };
         let mut header = self.reader.header().clone();
         header.set_attribute(Attribute::string("kpcn:model", &denoiser.model().description));
         header.set_attribute(Attribute::string("kpcn:layout", self.mapping.layout.name()));
-        let spec: Vec<(&str, SampleFormat)> = channels.iter().map(|(n, f, _)| (n.as_str(), *f)).collect();
-        let mut writer = FrameWriter::create(output, &header, &[("", spec)], &opts.write)?;
+        let spec: Vec<(&str, Vec<(&str, SampleFormat)>)> = parts
+            .iter()
+            .map(|(name, ch)| (name.as_str(), ch.iter().map(|(n, f, _)| (n.as_str(), *f)).collect()))
+            .collect();
+        let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
 
         let halo = denoiser.halo();
         let tiles_in = |a: usize, b: usize| tile::plan(w, b - a, denoiser.tile_size(w, b - a)).len();
         let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
-        for &(a, b) in &bands {
-            let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
-            // Context rows need only the network inputs; the copy needs every channel.
-            let names = if opts.separate { Some(needed.as_slice()) } else { None };
-            let fb = self.reader.read_band(names, c0, c1)?;
-            let inputs = self.mapping.extract(&fb)?;
-            for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
-                match totals.iter_mut().find(|t| t.0 == name) {
-                    Some(t) => {
-                        t.2.nonfinite += r.nonfinite;
-                        t.2.out_of_range += r.out_of_range;
-                    }
-                    None => totals.push((name, range, r)),
-                }
+        // Parts are written one after another (as EXR requires), each streamed in bands;
+        // only the beauty's part runs the network.
+        for (p, (_, channels)) in parts.iter().enumerate() {
+            if p > 0 {
+                writer.next_part()?;
             }
-            let f = denoiser.features(&inputs, max_depth);
-            drop(inputs);
-            let step = |p: Progress| progress(Progress { done: done + p.done, total });
-            let d = denoiser
-                .denoise_rows(&f, a - c0..b - c0, &step)
-                .map_err(|source| FileError::Denoise { path: path.clone(), source })?;
-            drop(f);
-            done += tiles_in(a, b);
-            let new = new_planes(&d, opts.aovs);
-            let inner = (a - c0) * w..(b - c0) * w;
-            let planes: Vec<&[f32]> = channels
+            let copies: Vec<&str> = channels
                 .iter()
-                .map(|(_, _, src)| match src {
-                    Src::New(k) => new[*k],
-                    Src::Input(n) => &fb.channel(n).expect("read with every channel")[inner.clone()],
+                .filter_map(|(_, _, src)| match src {
+                    Src::Input(n) => Some(n.as_str()),
+                    Src::New(_) => None,
                 })
                 .collect();
-            writer.write_band(&planes, b - a)?;
+            for &(a, b) in &bands {
+                if p != beauty_out {
+                    let fb = self.reader.read_band(Some(&copies), a, b)?;
+                    let planes: Vec<&[f32]> = copies.iter().map(|n| fb.channel(n).expect("read above")).collect();
+                    writer.write_band(&planes, b - a)?;
+                    continue;
+                }
+                let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
+                // Context rows need the network inputs; the copy needs this part's channels.
+                let mut names = needed.clone();
+                names.extend(copies.iter().filter(|n| !needed.contains(n)));
+                let fb = self.reader.read_band(Some(&names), c0, c1)?;
+                let inputs = self.mapping.extract(&fb)?;
+                for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
+                    match totals.iter_mut().find(|t| t.0 == name) {
+                        Some(t) => {
+                            t.2.nonfinite += r.nonfinite;
+                            t.2.out_of_range += r.out_of_range;
+                        }
+                        None => totals.push((name, range, r)),
+                    }
+                }
+                let f = denoiser.features(&inputs, max_depth);
+                drop(inputs);
+                let step = |p: Progress| progress(Progress { done: done + p.done, total });
+                let d = denoiser
+                    .denoise_rows(&f, a - c0..b - c0, &step)
+                    .map_err(|source| FileError::Denoise { path: path.clone(), source })?;
+                drop(f);
+                done += tiles_in(a, b);
+                let new = new_planes(&d, opts.aovs);
+                let inner = (a - c0) * w..(b - c0) * w;
+                let planes: Vec<&[f32]> = channels
+                    .iter()
+                    .map(|(_, _, src)| match src {
+                        Src::New(k) => new[*k],
+                        Src::Input(n) => &fb.channel(n).expect("read above")[inner.clone()],
+                    })
+                    .collect();
+                writer.write_band(&planes, b - a)?;
+            }
         }
         writer.commit()?;
         totals.retain(|t| t.2 != features::Repairs::default());

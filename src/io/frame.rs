@@ -230,9 +230,21 @@ impl FrameBuffers {
 #[derive(Debug, Clone)]
 struct ChannelRef {
     name: String,
+    /// The name inside its part (`name` gains the part's name when two parts share one).
+    part_name: String,
     format: SampleFormat,
     subimage: usize,
     index: usize,
+}
+
+/// One part (subimage) of a file: its name and its channels, each as the frame names it
+/// and as the part names it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartLayout {
+    /// The part's name (empty for single-part files).
+    pub name: String,
+    /// (frame channel name, name in the part, format), in the part's order.
+    pub channels: Vec<(String, String, SampleFormat)>,
 }
 
 /// An open image file read a band of rows at a time, so a frame larger than memory
@@ -243,6 +255,8 @@ pub struct FrameReader {
     channels: Vec<ChannelRef>,
     /// Per subimage: tile height (0 for scanline files) and data-window origin y.
     subimages: Vec<SubimageInfo>,
+    /// Per subimage: its name.
+    part_names: Vec<String>,
 }
 
 /// The largest frame kpcn reads: 16384×16384 pixels (a 16K square; renders are smaller).
@@ -290,6 +304,7 @@ impl FrameReader {
         let mut seen = HashSet::new();
         let mut channels = Vec::new();
         let mut subimages = Vec::new();
+        let mut part_names = Vec::new();
         for s in 0..input.subimages() {
             let info = input.info(s).map_err(open_err)?;
             let part = input.subimage_name(s);
@@ -309,13 +324,15 @@ impl FrameReader {
                 });
             }
             for (index, (name, format)) in input.channels(s).map_err(open_err)?.into_iter().enumerate() {
+                let part_name = name.clone();
                 let name = if seen.contains(&name) && !part.is_empty() { format!("{part}.{name}") } else { name };
                 seen.insert(name.clone());
-                channels.push(ChannelRef { name, format, subimage: s, index });
+                channels.push(ChannelRef { name, part_name, format, subimage: s, index });
             }
             subimages.push(info);
+            part_names.push(part);
         }
-        Ok(FrameReader { input, header, channels, subimages })
+        Ok(FrameReader { input, header, channels, subimages, part_names })
     }
 
     /// Size, windows, metadata and source of the frame; no planes.
@@ -326,6 +343,21 @@ impl FrameReader {
     /// Channel names in file order (as [`FrameBuffers::read`] names them).
     pub fn channel_names(&self) -> impl Iterator<Item = &str> {
         self.channels.iter().map(|c| c.name.as_str())
+    }
+
+    /// The file's parts, with their channels, in file order.
+    pub fn parts(&self) -> Vec<PartLayout> {
+        (0..self.subimages.len())
+            .map(|s| PartLayout {
+                name: self.part_names[s].clone(),
+                channels: self
+                    .channels
+                    .iter()
+                    .filter(|c| c.subimage == s)
+                    .map(|c| (c.name.clone(), c.part_name.clone(), c.format))
+                    .collect(),
+            })
+            .collect()
     }
 
     /// Format of each channel in file order.

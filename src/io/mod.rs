@@ -11,7 +11,7 @@ mod view;
 mod write;
 
 pub use error::IoError;
-pub use frame::{FrameBuffers, FrameReader, Plane, Window};
+pub use frame::{FrameBuffers, FrameReader, PartLayout, Plane, Window};
 pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
 pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
 pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};
