@@ -74,6 +74,9 @@ pub struct FileJob {
     mapping: Mapping,
 }
 
+/// An output channel: its name in its part, format and source.
+type OutChannel = (String, SampleFormat, Src);
+
 /// Where an output channel comes from.
 enum Src {
     Input(String),
@@ -161,12 +164,12 @@ impl FileJob {
         let input_parts = self.reader.parts();
         let beauty =
             input_parts.iter().position(|p| p.channels.iter().any(|c| color.first() == Some(&c.0))).unwrap_or(0);
-        let mut parts: Vec<(String, Vec<(String, SampleFormat, Src)>)> = Vec::new();
+        let mut parts: Vec<(String, Vec<OutChannel>)> = Vec::new();
         for (i, part) in input_parts.iter().enumerate() {
             if opts.separate && i != beauty {
                 continue;
             }
-            let mut channels: Vec<(String, SampleFormat, Src)> = Vec::new();
+            let mut channels: Vec<OutChannel> = Vec::new();
             if !opts.separate {
                 for (name, in_part, format) in &part.channels {
                     match (i == beauty).then(|| new_names.iter().position(|n| n == in_part)).flatten() {
