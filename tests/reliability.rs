@@ -560,3 +560,33 @@ fn multi_part_files_keep_their_parts() {
         assert_eq!(m.channel(c), s.channel(c), "{c}");
     }
 }
+
+/// `--max-memory` bounds what grows with the frame (bands and tiles); the process's fixed
+/// cost comes on top (README, `--help`). Peak RSS of the whole process, measured by the
+/// kernel (VmHWM), on a frame streamed in several bands.
+#[test]
+fn max_memory_bounds_the_working_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = super::util::write(&super::util::native_frame(320, 192, 8, &[]), dir.path(), "in.exr");
+    let out = dir.path().join("out.exr");
+    for budget in [16, 128] {
+        let o = Command::new(env!("CARGO_BIN_EXE_kpcn"))
+            .args(["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "-v", "--max-memory"])
+            .arg(budget.to_string())
+            .env("KPCN_REPORT_PEAK_RSS", "1")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        if budget == 16 {
+            assert!(stdout.contains("bands of 112 rows"), "several bands: {stdout}");
+        }
+        let kb: u64 = stderr(&o)
+            .lines()
+            .find_map(|l| l.strip_prefix("peak-rss-kb "))
+            .and_then(|v| v.trim().parse().ok())
+            .expect("peak RSS reported");
+        let fixed_mb = 640;
+        assert!(kb / 1024 <= budget + fixed_mb, "{budget} MB budget: peak {} MB", kb / 1024);
+    }
+}

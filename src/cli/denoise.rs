@@ -71,8 +71,11 @@ pub struct DenoiseArgs {
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
-    /// Working-memory budget in MB for one tile's network and for one band of rows in
-    /// flight (frames are read and written a band at a time); bigger means fewer tiles.
+    /// Working memory in MB that grows with the frame: each band of rows in flight
+    /// (every channel of the band, the network inputs and features) and each tile's network
+    /// activations are kept within it. Not counted: the process's fixed cost (program,
+    /// libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB). Measured peak RSS
+    /// for a 1920x1152 frame with 38 channels: 64 -> 489 MB, 512 -> 895, 1024 -> 1292.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
