@@ -75,7 +75,7 @@ pub struct DenoiseArgs {
     /// (every channel of the band, the network inputs and features) and each tile's network
     /// activations are kept within it. Not counted: the process's fixed cost (program,
     /// libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB). Measured peak RSS
-    /// for a 1920x1152 frame with 38 channels: 64 -> 489 MB, 512 -> 895, 1024 -> 1292.
+    /// for a 1920x1152 frame with 38 channels: 64 -> 478 MB, 512 -> 874, 1024 -> 1262.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
