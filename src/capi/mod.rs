@@ -204,11 +204,13 @@ fn check_size(struct_size: usize, expected: usize, what: &str) -> Result<(), Fai
 /// `options` is NULL or points to writable storage for a `KpcnOptions`.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn kpcn_options_init(options: *mut KpcnOptions) -> KpcnStatus {
-    guard(|| {
-        if options.is_null() {
-            return Err(Failure::invalid("options is NULL"));
-        }
-        let defaults = KpcnOptions {
+    // SAFETY: the caller's promise above.
+    guard(|| unsafe { write_defaults(options, "options") })
+}
+
+impl Default for KpcnOptions {
+    fn default() -> Self {
+        KpcnOptions {
             struct_size: size_of::<KpcnOptions>(),
             threads: 0,
             max_memory_mb: 0,
@@ -217,11 +219,49 @@ pub unsafe extern "C" fn kpcn_options_init(options: *mut KpcnOptions) -> KpcnSta
             model_data: std::ptr::null(),
             model_size: 0,
             allow_untrained: false,
-        };
-        // SAFETY: non-NULL, and the host's storage for a KpcnOptions.
-        unsafe { options.write(defaults) };
-        Ok(())
-    })
+        }
+    }
+}
+
+impl Default for KpcnFileOptions {
+    fn default() -> Self {
+        KpcnFileOptions {
+            struct_size: size_of::<KpcnFileOptions>(),
+            layer: std::ptr::null(),
+            aovs: false,
+            separate: false,
+            no_clobber: false,
+            layout: KpcnLayout::KpcnLayoutAuto as i32,
+        }
+    }
+}
+
+/// Fills the host's options struct at `p` with the defaults.
+///
+/// # Safety
+/// `p` is NULL or writable storage for a `T`.
+unsafe fn write_defaults<T: Default>(p: *mut T, what: &str) -> Result<(), Failure> {
+    if p.is_null() {
+        return Err(Failure::invalid(format!("{what} is NULL")));
+    }
+    // SAFETY: non-NULL, and the host's storage for a T.
+    unsafe { p.write(T::default()) };
+    Ok(())
+}
+
+/// The host's options struct at `p` (the defaults when NULL), once its `struct_size` (the
+/// first field of every options struct) says it is this library's version.
+///
+/// # Safety
+/// `p` is NULL or points to a struct whose first field is its `struct_size`.
+unsafe fn read_options<T: Default>(p: *const T, what: &str) -> Result<T, Failure> {
+    if p.is_null() {
+        return Ok(T::default());
+    }
+    // SAFETY: the size first (readable whatever the version), then the whole struct.
+    let size = unsafe { (p as *const usize).read_unaligned() };
+    check_size(size, size_of::<T>(), what)?;
+    Ok(unsafe { p.read_unaligned() })
 }
 
 fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
@@ -261,23 +301,8 @@ pub unsafe extern "C" fn kpcn_denoiser_new(options: *const KpcnOptions, out: *mu
         }
         // SAFETY: non-NULL.
         unsafe { out.write(std::ptr::null_mut()) };
-        let mut o = KpcnOptions {
-            struct_size: 0,
-            threads: 0,
-            max_memory_mb: 0,
-            model_name: std::ptr::null(),
-            model_path: std::ptr::null(),
-            model_data: std::ptr::null(),
-            model_size: 0,
-            allow_untrained: false,
-        };
-        unsafe { kpcn_options_init(&mut o) };
-        if !options.is_null() {
-            // SAFETY: read the size first, then the whole struct once the size matches.
-            let size = unsafe { std::ptr::addr_of!((*options).struct_size).read_unaligned() };
-            check_size(size, size_of::<KpcnOptions>(), "options")?;
-            o = unsafe { options.read_unaligned() };
-        }
+        // SAFETY: the caller's promise above.
+        let o = unsafe { read_options(options, "options") }?;
         let model = load_model(&o)?;
         let opts = Options {
             threads: (o.threads > 0).then_some(o.threads as usize),
@@ -490,22 +515,8 @@ pub unsafe extern "C" fn kpcn_execute(d: *mut KpcnDenoiser) -> KpcnStatus {
 /// `options` is NULL or points to writable storage for a `KpcnFileOptions`.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn kpcn_file_options_init(options: *mut KpcnFileOptions) -> KpcnStatus {
-    guard(|| {
-        if options.is_null() {
-            return Err(Failure::invalid("options is NULL"));
-        }
-        let defaults = KpcnFileOptions {
-            struct_size: size_of::<KpcnFileOptions>(),
-            layer: std::ptr::null(),
-            aovs: false,
-            separate: false,
-            no_clobber: false,
-            layout: KpcnLayout::KpcnLayoutAuto as i32,
-        };
-        // SAFETY: non-NULL, and the host's storage for a KpcnFileOptions.
-        unsafe { options.write(defaults) };
-        Ok(())
-    })
+    // SAFETY: the caller's promise above.
+    guard(|| unsafe { write_defaults(options, "options") })
 }
 
 /// Denoises the layered EXR `input` into `output` (`options` NULL = the defaults), as
@@ -523,21 +534,8 @@ pub unsafe extern "C" fn kpcn_denoise_file(
 ) -> KpcnStatus {
     on(d, |s| {
         let (input, output) = (text(input, "input")?, text(output, "output")?);
-        let mut o = KpcnFileOptions {
-            struct_size: 0,
-            layer: std::ptr::null(),
-            aovs: false,
-            separate: false,
-            no_clobber: false,
-            layout: 0,
-        };
-        unsafe { kpcn_file_options_init(&mut o) };
-        if !options.is_null() {
-            // SAFETY: as in kpcn_denoiser_new.
-            let size = unsafe { std::ptr::addr_of!((*options).struct_size).read_unaligned() };
-            check_size(size, size_of::<KpcnFileOptions>(), "options")?;
-            o = unsafe { options.read_unaligned() };
-        }
+        // SAFETY: the caller's promise above.
+        let o = unsafe { read_options(options, "options") }?;
         let layout = match o.layout {
             0 => None,
             1 => Some(Layout::Native),
