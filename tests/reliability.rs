@@ -90,8 +90,12 @@ fn a_file_the_user_cannot_write_is_not_replaced() {
     // As root every file is writable: run as `nobody`, for whom the 0444 file (owned by
     // someone else) is read-only although its folder is writable.
     let mut cmd = if unsafe { libc::geteuid() } == 0 {
+        // A copy of the binary that `nobody` may run, wherever the checkout lives.
+        let bin = dir.path().join("kpcn");
+        std::fs::copy(env!("CARGO_BIN_EXE_kpcn"), &bin).unwrap();
+        std::fs::set_permissions(&bin, std::fs::Permissions::from_mode(0o755)).unwrap();
         let mut c = Command::new("setpriv");
-        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", env!("CARGO_BIN_EXE_kpcn")]);
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"]).arg(&bin);
         c
     } else {
         Command::new(env!("CARGO_BIN_EXE_kpcn"))
