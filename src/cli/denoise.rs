@@ -5,7 +5,7 @@ use super::sequence::{Pattern, gaps, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
 use crate::io::atomic::{check_writable, same_file};
 use crate::io::layout::Layout;
-use crate::io::{FrameBuffers, WriteOptions};
+use crate::io::{FrameReader, WriteOptions};
 use crate::model::Model;
 use anyhow::bail;
 use clap::Args;
@@ -165,7 +165,7 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     check_outputs(&jobs, args.in_place)?;
     if args.skip_existing {
         let before = jobs.len();
-        jobs.retain(|(_, o)| FrameBuffers::read(o).is_err());
+        jobs.retain(|(_, o)| !FrameReader::is_complete(o));
         if !args.quiet && jobs.len() < before {
             eprintln!("kpcn: skipping {} of {before} frames whose output is complete", before - jobs.len());
         }

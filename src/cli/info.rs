@@ -93,14 +93,11 @@ fn summarize(path: &std::path::Path) -> Result<(FrameBuffers, Vec<Channel>), IoE
     let header = reader.header().clone();
     let mut channels: Vec<Channel> =
         reader.channel_formats().map(|(n, f)| Channel { name: n.to_string(), format: f, nonfinite: 0 }).collect();
-    let (w, h) = (header.width(), header.height());
-    let rows = ((64usize << 20) / (4 * w.max(1) * channels.len().max(1))).max(1);
-    for a in (0..h).step_by(rows) {
-        let band = reader.read_band(None, a, a + rows)?;
+    reader.for_each_band(64 << 20, |band| {
         for (c, p) in channels.iter_mut().zip(band.planes()) {
             c.nonfinite += p.data.iter().filter(|v| !v.is_finite()).count();
         }
-    }
+    })?;
     Ok((header, channels))
 }
 

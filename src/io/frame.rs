@@ -345,6 +345,23 @@ impl FrameReader {
         self.channels.iter().map(|c| c.name.as_str())
     }
 
+    /// Reads every channel of the whole frame a band of rows at a time, each band at most
+    /// about `budget` bytes, handing each to `f`: memory stays bounded whatever the size.
+    pub fn for_each_band(&mut self, budget: usize, mut f: impl FnMut(&FrameBuffers)) -> Result<(), IoError> {
+        let (w, h) = (self.header.width, self.header.height);
+        let rows = (budget / (4 * w.max(1) * self.channels.len().max(1))).max(1);
+        for a in (0..h).step_by(rows) {
+            f(&self.read_band(None, a, a + rows)?);
+        }
+        Ok(())
+    }
+
+    /// Whether `path` is a complete image: every sample of every part decodes (read in
+    /// bands of 64 MB, so even a 16K frame is checked in bounded memory).
+    pub fn is_complete(path: &Path) -> bool {
+        FrameReader::open(path).and_then(|mut r| r.for_each_band(64 << 20, |_| {})).is_ok()
+    }
+
     /// The file's parts, with their channels, in file order.
     pub fn parts(&self) -> Vec<PartLayout> {
         (0..self.subimages.len())
