@@ -163,10 +163,9 @@ fn on(d: *const KpcnDenoiser, body: impl FnOnce(&mut State) -> Result<(), Failur
         let _running = Running;
         body(&mut state)
     });
-    if let (KpcnStatus::KpcnOk, _) | (_, (None, _)) = (status, callback) {
-        return status;
-    }
-    if let (Some(f), user) = callback {
+    if let (Some(f), user) = callback
+        && status != KpcnStatus::KpcnOk
+    {
         // SAFETY: the host registered `f` for exactly this.
         unsafe { f(user, status, kpcn_last_error()) };
     }
