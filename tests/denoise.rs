@@ -14,7 +14,15 @@ use std::process::Command;
 /// A tiny network (fast in tests) with the paper's 21×21 kernels.
 fn tiny(kind: Kind, kernel: usize) -> Model {
     Model::xavier(
-        Architecture { kind, design: Design::Flat, layers: 3, channels: 6, conv_size: 3, kernel_size: kernel },
+        Architecture {
+            kind,
+            design: Design::Flat,
+            layers: 3,
+            channels: 6,
+            conv_size: 3,
+            kernel_size: kernel,
+            clamp: Default::default(),
+        },
         3,
     )
     .unwrap()
@@ -108,13 +116,22 @@ proptest! {
 
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
-        w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>()
+        w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
+        spread in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
-        // the receptive radius as halo) reproduce the frame exactly; hostile inputs stay finite.
+        // the receptive radius as halo) reproduce the frame exactly; hostile inputs stay
+        // finite. Both firefly clamps.
         let k = frame(w, h, seed, hostile);
-        let whole = run(tiny_ms(), &k, Some(1024), 1);
-        let tiled = run(tiny_ms(), &k, Some(tile), 2);
+        let model = || {
+            let mut m = tiny_ms();
+            if spread {
+                m.arch.clamp = kpcn::model::Clamp::Spread;
+            }
+            m
+        };
+        let whole = run(model(), &k, Some(1024), 1);
+        let tiled = run(model(), &k, Some(tile), 2);
         prop_assert!(all_finite(&whole));
         prop_assert_eq!(whole, tiled);
     }

@@ -50,7 +50,15 @@ fn options(steps: u64) -> TrainOptions {
 
 fn tiny() -> Model {
     Model::xavier(
-        Architecture { kind: Kind::Kpcn, design: Design::Flat, layers: 3, channels: 8, conv_size: 3, kernel_size: 5 },
+        Architecture {
+            kind: Kind::Kpcn,
+            design: Design::Flat,
+            layers: 3,
+            channels: 8,
+            conv_size: 3,
+            kernel_size: 5,
+            clamp: Default::default(),
+        },
         1,
     )
     .unwrap()

@@ -97,6 +97,13 @@ pub fn describe(m: &Model) {
     if a.kind == Kind::Kpcn {
         let scales = if a.design == Design::MultiScale { a.layers } else { 1 };
         println!("  kernels       {}×{} at {scales} scale(s)", a.kernel_size, a.kernel_size);
+        if a.design == Design::MultiScale {
+            let clamp = match a.clamp {
+                crate::model::Clamp::Hard => "hard (8-neighbour maximum; the excess is lost)",
+                crate::model::Clamp::Spread => "spread (the excess shared over the 3×3 neighbourhood)",
+            };
+            println!("  firefly clamp {clamp}");
+        }
     }
     println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
     println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);

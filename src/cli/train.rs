@@ -3,7 +3,7 @@
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
-use crate::model::Model;
+use crate::model::{Clamp, Model};
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
 use crate::train::{curves, records};
@@ -33,6 +33,11 @@ pub struct TrainArgs {
     /// Start from this model file instead of a fresh Xavier initialisation.
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
+    /// Firefly clamp of a multi-scale colour pyramid: `hard` (the excess is lost) or
+    /// `spread` (shared over the 3×3 neighbourhood, no energy lost). Default: the preset's
+    /// or the --init model's.
+    #[arg(long, value_enum, value_name = "hard|spread")]
+    pub clamp: Option<ClampArg>,
     /// Phase-1 steps: each branch alone, L1 in its transformed domain.
     #[arg(long, default_value_t = 1000, value_name = "N")]
     pub steps: u64,
@@ -106,6 +111,15 @@ fn plot(dir: &Path, bar: &ProgressBar) {
     }
 }
 
+/// `--clamp` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ClampArg {
+    /// Clamped to the 8 neighbours' maximum.
+    Hard,
+    /// Clamped, with the excess shared over the 3×3 neighbourhood.
+    Spread,
+}
+
 /// Runs `kpcn train`.
 pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     if args.batch == 0 || args.patch < 8 {
@@ -138,10 +152,16 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         records::write_log(&log_path, &rows)?;
         t
     } else {
-        let model = match &args.init {
+        let mut model = match &args.init {
             Some(p) => Model::load(p)?,
             None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
+        if let Some(c) = args.clamp {
+            model.arch.clamp = match c {
+                ClampArg::Hard => Clamp::Hard,
+                ClampArg::Spread => Clamp::Spread,
+            };
+        }
         records::write_log(&log_path, &[])?;
         Trainer::new(&model, &data, opts.clone())?
     };

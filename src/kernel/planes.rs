@@ -97,6 +97,30 @@ impl Planes {
         })
     }
 
+    /// [`Planes::clamp_to_neighbours`] without losing energy: what the clamp removes from a
+    /// pixel is shared equally among the pixels of its 3×3 neighbourhood (itself included,
+    /// those inside the frame), so every plane's sum is unchanged. A firefly becomes a
+    /// faint 3×3 patch instead of vanishing, which the kernels then average.
+    pub fn clamp_to_neighbours_spreading(&self) -> Planes {
+        let (w, h) = (self.w, self.h);
+        let clamped = self.clamp_to_neighbours();
+        let span = |i: usize, n: usize| 1 + usize::from(i > 0) + usize::from(i + 1 < n);
+        let share = Planes::by_rows(self.c, w, h, |c, y, dst| {
+            let (v, k) = (self.row(c, y), clamped.row(c, y));
+            for (x, d) in dst.iter_mut().enumerate() {
+                *d = (v[x] - k[x]) / (span(x, w) * span(y, h)) as f32;
+            }
+        });
+        Planes::by_rows(self.c, w, h, |c, y, dst| {
+            let rows: Vec<&[f32]> = (y.saturating_sub(1)..(y + 2).min(h)).map(|r| share.row(c, r)).collect();
+            let own = clamped.row(c, y);
+            for (x, d) in dst.iter_mut().enumerate() {
+                let cols = x.saturating_sub(1)..(x + 2).min(w);
+                *d = own[x] + rows.iter().map(|r| r[cols.clone()].iter().sum::<f32>()).sum::<f32>();
+            }
+        })
+    }
+
     /// Adds `coarse` (half the size, as many planes) upsampled 2× to the nearest
     /// neighbour, without building the upsampled planes.
     pub fn add_up_nearest(&mut self, coarse: &Planes) {
@@ -214,6 +238,12 @@ mod tests {
         x[6 + 4] = 9.0; // a two-pixel highlight
         x[2 * 6 + 4] = 8.0;
         x[4 * 6 + 5] = 0.0; // a dark pixel in a corner
+        let spread = Planes::from_vec(1, 6, 5, x.clone()).clamp_to_neighbours_spreading();
+        let (sum_in, sum_out): (f64, f64) = (
+            x.iter().map(|&v| v as f64).sum(),
+            spread.row(0, 0).iter().chain((1..5).flat_map(|r| spread.row(0, r).iter())).map(|&v| v as f64).sum(),
+        );
+        assert!((sum_in - sum_out).abs() < 1e-4 * sum_in.abs().max(1.0), "energy kept: {sum_in} vs {sum_out}");
         let p = Planes::from_vec(1, 6, 5, x.clone()).clamp_to_neighbours();
         let mut want = x;
         want[2 * 6 + 1] = 0.5;

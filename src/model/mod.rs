@@ -60,6 +60,19 @@ pub struct Architecture {
     pub conv_size: usize,
     /// Predicted kernel size (odd; KPCN only), at every scale for multi-scale.
     pub kernel_size: usize,
+    /// How the multi-scale colour pyramid treats isolated fireflies.
+    pub clamp: Clamp,
+}
+
+/// The firefly clamp of a multi-scale network's colour pyramid (`kpcn:clamp`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Clamp {
+    /// Clamped to the 8 neighbours' maximum; the excess is lost (biased dark on sparse,
+    /// bright light: BENCHMARKS.md).
+    #[default]
+    Hard,
+    /// The same clamp with the excess shared over the 3×3 neighbourhood: no energy lost.
+    Spread,
 }
 
 /// Errors loading, saving or running models.
@@ -94,12 +107,28 @@ pub enum ModelError {
 impl Architecture {
     /// The paper's configuration: 9 layers, 100 channels, 5×5 convolutions, 21×21 kernels.
     pub fn paper(kind: Kind) -> Self {
-        Architecture { kind, design: Design::Flat, layers: 9, channels: 100, conv_size: 5, kernel_size: 21 }
+        Architecture {
+            kind,
+            design: Design::Flat,
+            layers: 9,
+            channels: 100,
+            conv_size: 5,
+            kernel_size: 21,
+            clamp: Default::default(),
+        }
     }
 
     /// A small flat network: 6 layers, 32 channels, 3×3 convolutions, 11×11 kernels.
     pub fn small(kind: Kind) -> Self {
-        Architecture { kind, design: Design::Flat, layers: 6, channels: 32, conv_size: 3, kernel_size: 11 }
+        Architecture {
+            kind,
+            design: Design::Flat,
+            layers: 6,
+            channels: 32,
+            conv_size: 3,
+            kernel_size: 11,
+            clamp: Default::default(),
+        }
     }
 
     /// The multi-scale KPCN: 3 pooling levels, 16/32/48/64 channels, 3×3 convolutions,
@@ -112,6 +141,7 @@ impl Architecture {
             channels: 16,
             conv_size: 3,
             kernel_size: 5,
+            clamp: Default::default(),
         }
     }
 
@@ -232,6 +262,7 @@ impl Architecture {
             ("kpcn:channels", self.channels.to_string()),
             ("kpcn:conv_size", self.conv_size.to_string()),
             ("kpcn:kernel_size", self.kernel_size.to_string()),
+            ("kpcn:clamp", (if self.clamp == Clamp::Spread { "spread" } else { "hard" }).to_string()),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -270,6 +301,12 @@ impl Architecture {
             channels: num("kpcn:channels")?,
             conv_size: num("kpcn:conv_size")?,
             kernel_size: num("kpcn:kernel_size")?,
+            // Files from before the choice clamp hard.
+            clamp: match m.get("kpcn:clamp").map(String::as_str) {
+                None | Some("hard") => Clamp::Hard,
+                Some("spread") => Clamp::Spread,
+                Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
+            },
         };
         a.validate(origin)?;
         Ok(a)
@@ -466,6 +503,7 @@ mod tests {
             channels: 3,
             conv_size: 3,
             kernel_size: 1,
+            clamp: Default::default(),
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -509,6 +547,7 @@ mod tests {
                 channels: 4,
                 conv_size: 3,
                 kernel_size: 3,
+                clamp: Default::default(),
             },
             7,
         )

@@ -109,7 +109,9 @@ pub fn receptive_radius(a: &Architecture) -> usize {
     for s in (1..l).rev() {
         feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s);
     }
-    let mut colour: Vec<Span> = vec![(-1, 1)]; // clamped to the 3×3 neighbourhood
+    // Clamped to the 3×3 neighbourhood; spreading the excess reaches one pixel further.
+    let reach = if a.clamp == super::Clamp::Spread { 2 } else { 1 };
+    let mut colour: Vec<Span> = vec![(-reach, reach)];
     for s in 1..l {
         colour.push(pool(colour[s - 1], s - 1));
     }
@@ -133,8 +135,11 @@ pub fn receptive_radius(a: &Architecture) -> usize {
 /// scales that smooth regions draw from; then repeated 2×2 box averages. (Mid-means
 /// instead of averages also stop 2-pixel fireflies, but their downward bias on skewed
 /// low-sample noise cost more than they saved: measured on held-out simulator frames.)
-pub fn colour_pyramid(noisy: Planes, levels: usize) -> Vec<Planes> {
-    let mut colour = vec![noisy.clamp_to_neighbours()];
+pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: super::Clamp) -> Vec<Planes> {
+    let mut colour = vec![match clamp {
+        super::Clamp::Hard => noisy.clamp_to_neighbours(),
+        super::Clamp::Spread => noisy.clamp_to_neighbours_spreading(),
+    }];
     for s in 1..levels {
         let c = colour[s - 1].avg_pool2();
         colour.push(c);
@@ -175,7 +180,7 @@ pub fn forward(
     // gradient and is built by the same code as at inference.
     let (b, _, hh, ww) = noisy.dims4()?;
     let items: Vec<Vec<Planes>> = (0..b)
-        .map(|i| Ok(colour_pyramid(Planes::from_vec(3, ww, hh, noisy.get(i)?.flatten_all()?.to_vec1()?), l)))
+        .map(|i| Ok(colour_pyramid(Planes::from_vec(3, ww, hh, noisy.get(i)?.flatten_all()?.to_vec1()?), l, a.clamp)))
         .collect::<Result<_, ModelError>>()?;
     let colour: Vec<Tensor> = (0..l)
         .map(|s| {
@@ -209,7 +214,7 @@ mod tests {
         let (w, h) = (16, 8);
         let mut x = vec![0.25f32; 3 * w * h];
         x[5 * w + 9] = 1e4; // red channel only
-        let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x), 3);
+        let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x), 3, crate::model::Clamp::Hard);
         assert_eq!(pyramid.iter().map(|p| (p.w, p.h)).collect::<Vec<_>>(), [(16, 8), (8, 4), (4, 2)]);
         for p in &pyramid {
             assert!(p.data.iter().all(|&v| v == 0.25), "{:?}", p.data);

@@ -85,7 +85,7 @@ pub fn forward(
         feats[s] = Some(layer(&below.up_nearest().concat(&enc[s]), dec + j, true));
     }
     let feat = |s: usize| feats[s].as_ref().unwrap_or(&enc[s]);
-    let colour = multiscale::colour_pyramid(Planes::from_vec(3, w, h, noisy), l);
+    let colour = multiscale::colour_pyramid(Planes::from_vec(3, w, h, noisy), l, arch.clamp);
 
     let (k, k2) = (arch.kernel_size, arch.kernel_size * arch.kernel_size);
     let mut out: Option<Planes> = None;

@@ -109,6 +109,7 @@ pub fn tiny_multiscale(seed: u64) -> kpcn::model::Model {
         channels: 4,
         conv_size: 3,
         kernel_size: 3,
+        clamp: Default::default(),
     };
     Model::xavier(arch, seed).unwrap()
 }
