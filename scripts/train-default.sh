@@ -28,7 +28,7 @@ resume=()
 if [ -f "$work/run/checkpoint.safetensors" ]; then
     resume=(--resume)
 fi
-nice -n 19 "$kpcn" train --data "$work/data" -o "$work/run" --preset multiscale \
+nice -n 19 "$kpcn" train --data "$work/data" -o "$work/run" --preset multiscale --clamp spread \
     --steps "$steps" --phase2-steps "$phase2" --batch 6 --patch 64 --lr 1e-3 --lr-phase2 1e-4 \
     --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
 echo "model: $work/run/model.safetensors (log: $work/run/log.csv)"

@@ -132,7 +132,7 @@ impl Architecture {
     }
 
     /// The multi-scale KPCN: 3 pooling levels, 16/32/48/64 channels, 3×3 convolutions,
-    /// 5×5 kernels at full, half and quarter resolution.
+    /// 5×5 kernels at full, half and quarter resolution, the spreading firefly clamp.
     pub fn multiscale() -> Self {
         Architecture {
             kind: Kind::Kpcn,
@@ -141,7 +141,8 @@ impl Architecture {
             channels: 16,
             conv_size: 3,
             kernel_size: 5,
-            clamp: Default::default(),
+            // The shipped default's: energy-preserving (BENCHMARKS.md).
+            clamp: Clamp::Spread,
         }
     }
 
