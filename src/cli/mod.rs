@@ -110,6 +110,11 @@ pub fn peak_rss_kb() -> Option<u64> {
 
 /// Runs the parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    // Both allocate and free the same large tensors over and over (before any thread
+    // starts, so that every thread shares the one kept heap).
+    if matches!(cli.command, Command::Train(_) | Command::Speed(_)) {
+        crate::kernel::buffers::keep_freed_memory();
+    }
     // `kpcn train` stops gracefully on Ctrl-C instead, after saving its checkpoint.
     if !matches!(cli.command, Command::Train(_)) {
         signals::exit_on_signals();

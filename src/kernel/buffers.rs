@@ -68,6 +68,24 @@ fn advise_huge(v: &mut Vec<f32>) {
     }
 }
 
+/// Makes the C allocator keep freed memory for reuse instead of returning it to the
+/// kernel: blocks up to 32 MiB come from the heap, not from a fresh `mmap`; every thread
+/// uses the main heap (glibc shrinks the per-thread ones with `MADV_DONTNEED`); and the
+/// heap is never trimmed. Training allocates and frees the same tensor sizes every step,
+/// and without this each of them page-faults anew (measured: a 1×1 layer's backward
+/// pass on a training batch, 14 ms → 5.6 ms). Call it before other threads start. The
+/// process keeps its peak footprint, so this is for processes that own their allocator,
+/// the CLI's trainer and benchmarks, never the library on a host's behalf.
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes glibc's allocation policy; a refused value is harmless.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,15 +4,21 @@
 //! The forward pass is a register-blocked direct convolution. Weights are packed once per
 //! layer ([`ConvLayer`]) into panels of [`MR`] output channels, `[cin·k·k][MR]`, so the
 //! micro-kernel broadcasts them from one contiguous stream; input rows are read straight
-//! from the zero-padded planes (no im2col copy). With AVX-512 a block is 8 output
-//! channels × 32 pixels (16 accumulators, masked at the right edge); with AVX2,
+//! from zero-padded bands of rows (no im2col copy). With AVX-512 a block is 8 output
+//! channels × 3 segments of 16 pixels (24 accumulators, masked at the edges; narrow
+//! planes run their segments across row ends, see `Job::rows_avx512`); with AVX2,
 //! 8 × 8; otherwise scalar. Every output value starts at its bias and adds
 //! `input·weight` with one fused multiply-add per term, in the order (input channel,
 //! row, column), wherever it lies in the plane and whichever path runs, so tiles and
 //! bands equal the whole frame bit for bit.
+//!
+//! The weight gradient vectorises over pixels (`Taps`), or over output channels for
+//! 3×3 layers wider than 16 (`by_channel`); the input gradient is the forward pass with
+//! transposed weights ([`ConvLayer::transposed`]).
 
 use super::planes::Planes;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::ops::Range;
 
 /// Output channels per packed weight panel (one micro-kernel block).
@@ -102,15 +108,17 @@ fn pad_into(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: 
 }
 
 /// Rows `y0 − r .. y1 + r` of `c` planes of `w × h` (`input`), zero outside the plane,
-/// each row zero-padded by `r` each side, written into `buf` (resized): the padded input
-/// of output rows `y0..y1`.
+/// each row zero-padded by `r` each side, written into `buf` (resized, with `2r` zeros
+/// after): the padded input of output rows `y0..y1`.
 #[allow(clippy::too_many_arguments)]
 fn pad_rows(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: usize, y0: usize, y1: usize) {
     let (pw, rows) = (w + 2 * r, y1 - y0 + 2 * r);
     // Every value is written below, so a reused buffer of the right length needs no
-    // clearing.
-    buf.resize(c * rows * pw, 0.0);
-    for (ch, dst) in buf.chunks_mut(rows * pw).enumerate() {
+    // clearing. The last plane is followed by 2r zeros, read (times dropped columns) by
+    // flat segments.
+    buf.resize(c * rows * pw + 2 * r, 0.0);
+    buf[c * rows * pw..].fill(0.0);
+    for (ch, dst) in buf[..c * rows * pw].chunks_mut(rows * pw).enumerate() {
         for (j, row) in dst.chunks_mut(pw).enumerate() {
             match (y0 + j).checked_sub(r).filter(|&y| y < h) {
                 Some(y) => {
@@ -126,7 +134,10 @@ fn pad_rows(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: 
 
 /// Output rows per parallel task of a convolution: the task pads just its own input rows
 /// ([`pad_rows`]), so no padded copy of a whole (possibly huge) input is ever held.
-const BAND: usize = 8;
+/// At least 8 rows and ~2048 pixels, so a narrow plane's task is not all edges.
+fn band_rows(w: usize) -> usize {
+    (2048 / w.max(1)).max(8)
+}
 
 /// A raw pointer that rows written by different threads share; each row is written by
 /// exactly one task.
@@ -159,30 +170,26 @@ pub fn conv_batch(input: &[f32], items: usize, w: usize, h: usize, layer: &ConvL
         return out;
     }
     let r = (layer.k - 1) / 2;
-    let (isa, pw) = (Isa::detect(), w + 2 * r);
-    for i in 0..items {
+    let (isa, pw, band) = (Isa::detect(), w + 2 * r, band_rows(w));
+    let bands = h.div_ceil(band);
+    let ptr = RowsPtr(out.as_mut_ptr());
+    // One task per band of rows of one image, so a batch of small images (training
+    // patches at the coarse scales) still gives every thread work.
+    (0..items * bands).into_par_iter().for_each_init(<(Vec<f32>, Vec<f32>)>::default, |(buf, scratch), t| {
+        let (i, y0) = (t / bands, t % bands * band);
+        let y1 = (y0 + band).min(h);
         let item = &input[i * n_in..][..n_in];
-        let ptr = RowsPtr(out.as_mut_ptr().wrapping_add(i * n_out));
-        if r == 0 {
+        let job = if r == 0 {
             // A 1×1 convolution reads its input in place.
-            let job = Job { src: item, layer, w, h, pw, ph: h, y0: 0, relu, isa };
-            (0..h).into_par_iter().for_each(|y| {
-                // SAFETY: row `y` of every output plane of item `i` is written by this
-                // task only, inside the buffer's capacity; `out` outlives the loop.
-                unsafe { job.row(y, ptr.get()) }
-            });
-            continue;
-        }
-        (0..h.div_ceil(BAND)).into_par_iter().for_each_init(Vec::new, |buf, b| {
-            let (y0, y1) = (b * BAND, (b * BAND + BAND).min(h));
+            Job { src: item, layer, w, h, pw, ph: h, y0: 0, relu, isa }
+        } else {
             pad_rows(buf, item, layer.cin, w, h, r, y0, y1);
-            let job = Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa };
-            for y in y0..y1 {
-                // SAFETY: as above, for the rows of this band.
-                unsafe { job.row(y, ptr.get()) }
-            }
-        });
-    }
+            Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa }
+        };
+        // SAFETY: rows y0..y1 of every output plane of item `i` are written by this task
+        // only, inside the buffer's capacity; `out` outlives the loop.
+        unsafe { job.rows(y0..y1, ptr.get().wrapping_add(i * n_out), scratch) }
+    });
     // SAFETY: every row of every channel of every item was written above (each path
     // writes columns 0..w of its rows).
     unsafe { out.set_len(items * n_out) };
@@ -244,20 +251,28 @@ macro_rules! with_const {
 }
 
 impl Job<'_> {
-    /// Output row `y` of every channel.
+    /// Output rows `ys` of every channel (`scratch`: a reusable buffer).
     ///
     /// # Safety
-    /// `out` points at `cout × h × w` floats, `y < h`, and no other thread writes row `y`.
-    unsafe fn row(&self, y: usize, out: *mut f32) {
+    /// `out` points at `cout × h × w` floats, `ys` lie below `h` and inside `src`, and no
+    /// other thread writes these rows.
+    unsafe fn rows(&self, ys: Range<usize>, out: *mut f32, scratch: &mut Vec<f32>) {
         #[cfg(target_arch = "x86_64")]
-        match self.isa {
+        if self.isa == Isa::Avx512 {
             // SAFETY: the CPU has the instructions (detected); the caller's contract.
-            Isa::Avx512 => return unsafe { self.row_avx512(y, out) },
-            Isa::Avx2 => return unsafe { self.row_avx2(y, out) },
-            Isa::Scalar => {}
+            return unsafe { self.rows_avx512(ys, out, scratch) };
         }
-        // SAFETY: the caller's contract.
-        unsafe { self.row_scalar(y, out, 0) }
+        let _ = scratch;
+        for y in ys {
+            #[cfg(target_arch = "x86_64")]
+            if self.isa == Isa::Avx2 {
+                // SAFETY: as above.
+                unsafe { self.row_avx2(y, out) };
+                continue;
+            }
+            // SAFETY: the caller's contract.
+            unsafe { self.row_scalar(y, out, 0) }
+        }
     }
 
     /// Columns `from..w` of row `y`, one value at a time, in the canonical order.
@@ -288,39 +303,93 @@ impl Job<'_> {
         }
     }
 
+    /// Rows `ys` in segments of up to 16 pixels, taken `NV` at a time in row-major order
+    /// whatever the width: a 12-pixel-wide plane fills 12 of 16 lanes, not 12 of 48.
+    /// Narrow planes go flat: segments run on across row ends in the padded rows, whose
+    /// `2r` extra columns are computed and dropped (24 columns fill 24 of every 26 lanes
+    /// instead of 24 of 32); with `r > 0` the sums then wait in `scratch`, in rows of
+    /// `pw`. Each output value is the same sum either way.
+    ///
+    /// # Safety
+    /// As [`Job::rows`], and AVX-512F is available.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn row_avx512(&self, y: usize, out: *mut f32) {
+    unsafe fn rows_avx512(&self, ys: Range<usize>, out: *mut f32, scratch: &mut Vec<f32>) {
         const NV: usize = 3;
         let l = self.layer;
-        let (k2, kk) = (l.k * l.k, l.cin * l.k * l.k);
+        let (w, h, pw) = (self.w, self.h, self.pw);
+        let (k2, kk, plane) = (l.k * l.k, l.cin * l.k * l.k, pw * self.ph);
+        let rows = ys.len();
+        let mask = |left: usize| if left >= 16 { u16::MAX } else { (1u16 << left) - 1 };
+        let flat = pw == w || 16 * w.div_ceil(16) > pw + pw / 16;
+        let first = (ys.start - self.y0) * pw;
+        let (segments, dst, out_plane): (Vec<Segment>, *mut f32, usize) = if !flat {
+            let segments = ys
+                .clone()
+                .flat_map(|y| {
+                    (0..w).step_by(16).map(move |x| Segment {
+                        src: (y - self.y0) * pw + x,
+                        dst: y * w + x,
+                        mask: mask(w - x),
+                    })
+                })
+                .collect();
+            (segments, out, w * h)
+        } else {
+            let n = rows * pw;
+            // With r = 0 the flat rows are the output's own; else they go to `scratch`.
+            let (dst, base) = if pw == w {
+                (out, ys.start * w)
+            } else {
+                scratch.resize(l.cout.next_multiple_of(MR) * n, 0.0);
+                (scratch.as_mut_ptr(), 0)
+            };
+            let segments =
+                (0..n).step_by(16).map(|q| Segment { src: first + q, dst: base + q, mask: mask(n - q) }).collect();
+            (segments, dst, if pw == w { w * h } else { n })
+        };
         // Input channels go through in chunks of about 144 terms, so one chunk's input rows
         // and weights stay in L1 across the output-channel blocks. The partial sums wait
         // in the output, so every value is still summed in the one canonical order.
         let chunk = 144usize.div_ceil(k2);
-        for x in (0..self.w).step_by(16 * NV) {
-            let masks: [u16; NV] = std::array::from_fn(|i| {
-                let left = (self.w - x).saturating_sub(16 * i);
-                if left >= 16 { u16::MAX } else { (1u16 << left) - 1 }
-            });
+        for group in segments.chunks(NV) {
+            // A short last group repeats its first segment with every lane masked off.
+            let group: [Segment; NV] =
+                std::array::from_fn(|i| group.get(i).copied().unwrap_or(Segment { mask: 0, ..group[0] }));
             for c0 in (0..l.cin).step_by(chunk) {
                 let c1 = (c0 + chunk).min(l.cin);
                 for b in 0..l.cout.div_ceil(MR) {
                     let m = (l.cout - b * MR).min(MR);
                     let a = Block {
-                        src: self.src[(c0 * self.pw * self.ph + (y - self.y0) * self.pw + x)..].as_ptr(),
+                        src: self.src[c0 * plane..].as_ptr(),
                         panel: l.packed[(b * kk + c0 * k2) * MR..].as_ptr(),
                         bias: l.bias[b * MR..].as_ptr(),
-                        dst: out.wrapping_add((b * MR * self.h + y) * self.w + x),
-                        out_plane: self.w * self.h,
+                        dst: dst.wrapping_add(b * MR * out_plane),
+                        out_plane,
                         channels: c1 - c0,
                         first: c0 == 0,
                         last: c1 == l.cin,
                     };
-                    // SAFETY: unmasked reads stay inside the padded planes; writes (and
-                    // the reads of partial sums) stay in row y of channels b·MR.. + m,
-                    // masked to the columns < w.
-                    unsafe { with_const!(m, M => block_avx512::<M, NV>(self, &a, masks), [8 7 6 5 4 3 2] else 1) };
+                    // SAFETY: masked reads stay inside the padded planes (flat segments
+                    // read up to 2r floats past a plane: the next plane's zero rows, or
+                    // the zeros after the last); writes (and the reads of partial sums)
+                    // stay in the group's rows of channels b·MR.. + m, masked.
+                    unsafe { with_const!(m, M => block_avx512::<M, NV>(self, &a, &group), [8 7 6 5 4 3 2] else 1) };
+                }
+            }
+        }
+        if flat && pw != w {
+            for c in 0..l.cout {
+                for (j, y) in ys.clone().enumerate() {
+                    // SAFETY: row y of channel c lies in `out` (caller's contract); the
+                    // scratch row was written above.
+                    unsafe {
+                        std::ptr::copy_nonoverlapping(
+                            scratch.as_ptr().add(c * out_plane + j * pw),
+                            out.add((c * h + y) * w),
+                            w,
+                        )
+                    };
                 }
             }
         }
@@ -364,13 +433,15 @@ impl Job<'_> {
 
 /// One micro-kernel block's pointers.
 struct Block {
-    /// Padded input at (channel 0, the block's first padded row and column).
+    /// Padded input at channel 0 (AVX-512: row 0, column 0 of the job's rows; AVX2: the
+    /// block's first padded row and column).
     src: *const f32,
     /// The block's weight panel `[cin·k·k][MR]`.
     panel: *const f32,
     /// The block's `MR` biases.
     bias: *const f32,
-    /// Output at (the block's first channel, row, column).
+    /// Output at the block's first channel (AVX-512: row 0, column 0; AVX2: the block's
+    /// row and column).
     dst: *mut f32,
     /// Floats between output channels.
     out_plane: usize,
@@ -382,13 +453,25 @@ struct Block {
     last: bool,
 }
 
-/// `M` output channels × `16·NV` pixels (`NV` vectors, each under its mask).
+/// Up to 16 consecutive output pixels of one row, as offsets from [`Block::src`] and
+/// [`Block::dst`].
+#[derive(Clone, Copy)]
+struct Segment {
+    /// Offset of the segment's first padded input (tap 0, 0) in a padded plane.
+    src: usize,
+    /// Offset of its first output in an output plane.
+    dst: usize,
+    /// Lanes inside the plane.
+    mask: u16,
+}
+
+/// `M` output channels × `NV` segments of 16 pixels (each under its mask).
 ///
 /// # Safety
-/// AVX-512F is available; `a`'s pointers are valid for the reads and masked writes.
+/// AVX-512F is available; `a`'s pointers are valid for the masked reads and writes.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, masks: [u16; NV]) {
+unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, seg: &[Segment; NV]) {
     use std::arch::x86_64::*;
     let (k, pw, plane) = (job.layer.k, job.pw, job.pw * job.ph);
     unsafe {
@@ -399,7 +482,7 @@ unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, ma
             } else {
                 let dst = a.dst.add(j * a.out_plane);
                 for (i, v) in row.iter_mut().enumerate() {
-                    *v = _mm512_maskz_loadu_ps(masks[i], dst.add(16 * i));
+                    *v = _mm512_maskz_loadu_ps(seg[i].mask, dst.add(seg[i].dst));
                 }
             }
         }
@@ -410,7 +493,7 @@ unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, ma
                 for kx in 0..k {
                     let mut v = [_mm512_setzero_ps(); NV];
                     for (i, vi) in v.iter_mut().enumerate() {
-                        *vi = _mm512_maskz_loadu_ps(masks[i], row.add(kx + 16 * i));
+                        *vi = _mm512_maskz_loadu_ps(seg[i].mask, row.add(seg[i].src + kx));
                     }
                     for (j, accj) in acc.iter_mut().enumerate() {
                         let wv = _mm512_set1_ps(*wp.add(j));
@@ -427,7 +510,7 @@ unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, ma
             let dst = a.dst.add(j * a.out_plane);
             for i in 0..NV {
                 let o = if job.relu && a.last { _mm512_max_ps(accj[i], zero) } else { accj[i] };
-                _mm512_mask_storeu_ps(dst.add(16 * i), masks[i], o);
+                _mm512_mask_storeu_ps(dst.add(seg[i].dst), seg[i].mask, o);
             }
         }
     }
@@ -505,72 +588,115 @@ fn weight_gradient_on(
     let (r, k2, plane) = (k.saturating_sub(1) / 2, k * k, w * h);
     assert_eq!(input.len(), items * cin * plane, "input of {items} images of {cin}×{h}×{w}");
     assert_eq!(grad.len(), items * cout * plane, "gradient of {items} images of {cout}×{h}×{w}");
+    // Every plane is laid out in rows of `pw` floats: the input zero-padded, the gradient
+    // with `2r` zero columns. Gradient pixel `p = y·pw + x` then meets padded input
+    // `p + ky·pw + kx` for tap (ky, kx), so rows form one flat run and vectors cross row
+    // ends: a 24-pixel-wide patch fills 24 of every 26 lanes, not 24 of 32. The zero
+    // columns add nothing. A 1×1 convolution uses both planes in place.
     let (pw, ph) = (w + 2 * r, h + 2 * r);
-    let pads: Vec<Vec<f32>> = (0..items)
-        .map(|i| {
-            let mut p = Vec::new();
-            pad_into(&mut p, &input[i * cin * plane..][..cin * plane], cin, w, h, r);
-            p
-        })
-        .collect();
-    // Register blocks: 2 output channels × 1 input channel × 9 taps for 3×3, 4 × 4 for
-    // 1×1, each summed as 16 lanes kept in memory between bands of rows, so a band's
-    // planes stay in cache while every block uses them. One task per output-channel block
-    // owns its values and sums items, bands and lanes in a fixed order, so results do not
+    let (splane, gplane) = (pw * ph, pw * h);
+    let src: Cow<[f32]> = if r == 0 {
+        Cow::Borrowed(input)
+    } else {
+        let mut pad = Vec::new();
+        pad_into(&mut pad, input, items * cin, w, h, r);
+        // The last plane's last taps read `2r` floats past it (times zero gradient).
+        pad.resize(pad.len() + 2 * r, 0.0);
+        Cow::Owned(pad)
+    };
+    #[cfg(target_arch = "x86_64")]
+    if k == 3 && cout > 16 && isa != Isa::Scalar {
+        return by_channel::weight_gradient(isa, &src, grad, items, w, h, cin, cout);
+    }
+    let g: Cow<[f32]> = if r == 0 {
+        Cow::Borrowed(grad)
+    } else {
+        let mut g = vec![0f32; items * cout * gplane];
+        g.par_chunks_mut(pw).zip(grad.par_chunks(w)).for_each(|(d, s)| d[..w].copy_from_slice(s));
+        Cow::Owned(g)
+    };
+    // Register blocks: 3 output channels × 1 input channel × 9 taps for 3×3, 4 × 6 for
+    // 1×1 (27 and 24 accumulators: more FMAs per load, which bounds these loops), each
+    // summed as 16 lanes kept in memory between runs of pixels, so a run's planes stay in
+    // cache while every block uses them. One task per output-channel block
+    // owns its values and sums items, runs and lanes in a fixed order, so results do not
     // depend on threads.
-    let (mb, nb) = if k == 1 { (4, 4) } else { (2, 1) };
+    let (mb, nb) = if k == 1 { (4, 6) } else { (3, 1) };
     let (co_blocks, ci_blocks) = (cout.div_ceil(mb), cin.div_ceil(nb));
     let block = mb * nb * k2;
-    let band = (32768 / (cin * pw).max(1)).clamp(1, h.max(1));
-    let mut blocks = vec![0f32; co_blocks * ci_blocks * block];
-    blocks.par_chunks_mut(ci_blocks * block).enumerate().for_each(|(cb, taps)| {
-        let co = cb * mb;
-        let m = (cout - co).min(mb);
-        let mut lanes = vec![0f32; ci_blocks * block * 16];
-        for (i, pad) in pads.iter().enumerate() {
-            for y0 in (0..h).step_by(band) {
-                let rows = y0..(y0 + band).min(h);
-                for (cj, acc) in lanes.chunks_mut(block * 16).enumerate() {
-                    let ci = cj * nb;
-                    let n = (cin - ci).min(nb);
-                    let t = Taps {
-                        src: &pad[ci * pw * ph..(ci + n) * pw * ph],
-                        grad: &grad[(i * cout + co) * plane..][..m * plane],
-                        w,
-                        h,
-                        pw,
-                        ph,
-                    };
-                    // The block shapes the vector kernels are built for; others go scalar.
-                    #[allow(unused_macros)] // unused off x86-64
-                    macro_rules! blocks {
-                        ($sum:ident) => {
-                            match (m, n, k) {
-                                (2, 1, 3) => t.$sum::<2, 1, 3>(rows.clone(), nb, acc),
-                                (1, 1, 3) => t.$sum::<1, 1, 3>(rows.clone(), nb, acc),
-                                (1..=4, 1..=4, 1) => with_const!(m, M => with_const!(n, N =>
-                                    t.$sum::<M, N, 1>(rows.clone(), nb, acc), [4 3 2] else 1), [4 3 2] else 1),
-                                _ => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
-                            }
+    let per_block = ci_blocks * block;
+    let run = (32768 / cin.max(1)).next_multiple_of(16).clamp(16, gplane.max(16));
+    // One task per group of output-channel blocks: a run of pixels of every input
+    // channel is read from memory once per group (the runs of a large 1×1 layer would
+    // otherwise stream from memory once per block). Groups are as large as the thread
+    // count and ~256 KiB of lanes allow; they change no value's order of summation, and
+    // each value sums images, runs and lanes in one fixed order.
+    let group = co_blocks.div_ceil(2 * rayon::current_num_threads()).clamp(1, (65536 / (per_block * 16)).max(1));
+    let groups = co_blocks.div_ceil(group);
+    let partial: Vec<Vec<f32>> = (0..groups)
+        .into_par_iter()
+        .map(|gr| {
+            let cbs = gr * group..((gr + 1) * group).min(co_blocks);
+            let mut lanes = vec![0f32; cbs.len() * per_block * 16];
+            for (i, p0) in (0..items).flat_map(|i| (0..gplane).step_by(run).map(move |p0| (i, p0))) {
+                let pixels = p0..(p0 + run).min(gplane);
+                for (cb, lanes) in cbs.clone().zip(lanes.chunks_mut(per_block * 16)) {
+                    let co = cb * mb;
+                    let m = (cout - co).min(mb);
+                    for (cj, acc) in lanes.chunks_mut(block * 16).enumerate() {
+                        let ci = cj * nb;
+                        let n = (cin - ci).min(nb);
+                        let t = Taps {
+                            src: &src[(i * cin + ci) * splane..],
+                            grad: &g[(i * cout + co) * gplane..][..m * gplane],
+                            splane,
+                            gplane,
+                            pw,
                         };
+                        // The block shapes the vector kernels are built for; others go scalar.
+                        #[allow(unused_macros)] // unused off x86-64
+                        macro_rules! blocks {
+                            ($sum:ident) => {
+                                match (m, n, k) {
+                                    (1..=3, 1, 3) => {
+                                        with_const!(m, M => t.$sum::<M, 1, 3>(pixels.clone(), nb, acc), [3 2] else 1)
+                                    }
+                                    (1..=4, 1..=6, 1) => with_const!(m, M => with_const!(n, N =>
+                                        t.$sum::<M, N, 1>(pixels.clone(), nb, acc), [6 5 4 3 2] else 1), [4 3 2] else 1),
+                                    _ => t.sum_scalar(m, n, k, nb, pixels.clone(), acc),
+                                }
+                            };
+                        }
+                        #[cfg(target_arch = "x86_64")]
+                        match isa {
+                            // SAFETY: AVX-512F is available (detected).
+                            Isa::Avx512 => unsafe { blocks!(sum_avx512) },
+                            // SAFETY: AVX2 and FMA are available (detected).
+                            Isa::Avx2 => unsafe { blocks!(sum_avx2) },
+                            Isa::Scalar => t.sum_scalar(m, n, k, nb, pixels.clone(), acc),
+                        }
+                        #[cfg(not(target_arch = "x86_64"))]
+                        t.sum_scalar(m, n, k, nb, pixels.clone(), acc);
                     }
-                    #[cfg(target_arch = "x86_64")]
-                    match isa {
-                        // SAFETY: AVX-512F is available (detected).
-                        Isa::Avx512 => unsafe { blocks!(sum_avx512) },
-                        // SAFETY: AVX2 and FMA are available (detected).
-                        Isa::Avx2 => unsafe { blocks!(sum_avx2) },
-                        Isa::Scalar => t.sum_scalar(m, n, k, nb, rows.clone(), acc),
-                    }
-                    #[cfg(not(target_arch = "x86_64"))]
-                    t.sum_scalar(m, n, k, nb, rows.clone(), acc);
                 }
             }
-        }
-        for (t, lane) in taps.iter_mut().zip(lanes.chunks(16)) {
-            *t = lane.iter().sum();
-        }
-    });
+            lanes
+                .chunks_exact(16)
+                .map(|lane| {
+                    // A pairwise tree, which vectorises (a running sum is a 16-add
+                    // latency chain per value, a fifth of the whole on narrow layers).
+                    let mut v: [f32; 16] = lane.try_into().expect("16 lanes");
+                    for half in [8, 4, 2, 1] {
+                        for i in 0..half {
+                            v[i] += v[i + half];
+                        }
+                    }
+                    v[0]
+                })
+                .collect()
+        })
+        .collect();
+    let blocks = partial.concat();
     // Blocks are [co block][ci block][mb][nb][k²]; the result is [cout][cin][k²].
     let mut out = vec![0f32; cout * cin * k2];
     for co in 0..cout {
@@ -583,45 +709,115 @@ fn weight_gradient_on(
     out
 }
 
-/// One weight-gradient task's planes: `n` input channels padded (`pw × ph` each) and `m`
-/// output channels' gradients (`w × h` each).
+/// One weight-gradient task's planes, laid out as in [`weight_gradient_on`]: input
+/// channels from `src`'s start, `splane` floats apart, and `m` output channels'
+/// gradients, `gplane` floats apart.
 struct Taps<'a> {
     src: &'a [f32],
     grad: &'a [f32],
-    w: usize,
-    h: usize,
+    splane: usize,
+    gplane: usize,
     pw: usize,
-    ph: usize,
+}
+
+/// Defines a vector [`Taps`] kernel: the sums of [`Taps::sum_scalar`] for `M` gradients,
+/// `N ≤ nb` input channels and `K × K` taps, `$lanes` pixels at a time into the first
+/// `$lanes` of 16 lanes. One body for every instruction set; what differs is passed in:
+/// the vector type's zero, the mask of the `left` pixels still to go, a masked load, a
+/// fused multiply-add, and the accumulators' load and store.
+macro_rules! taps_kernel {
+    (
+        $(#[$attr:meta])* $name:ident, $lanes:literal, $zero:expr,
+        mask |$left:ident| $mask:expr,
+        load |$ptr:ident, $m:ident| $load:expr,
+        $fma:path,
+        get |$q:ident| $get:expr,
+        put |$d:ident, $v:ident| $put:expr $(,)?
+    ) => {
+        $(#[$attr])*
+        #[allow(clippy::needless_range_loop)] // indices name the accumulator block's axes
+        unsafe fn $name<const M: usize, const N: usize, const K: usize>(
+            &self,
+            pixels: Range<usize>,
+            nb: usize,
+            out: &mut [f32],
+        ) {
+            use std::arch::x86_64::*;
+            assert!(self.fits(M, N, K, &pixels, nb, out.len()), "a weight-gradient block outside its planes");
+            let at = |j: usize, c: usize, ky: usize, kx: usize| (((j * nb + c) * K + ky) * K + kx) * 16;
+            let (pw, sp, gp) = (self.pw, self.splane, self.gplane);
+            // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
+            unsafe {
+                let mut acc = [[[[$zero; K]; K]; N]; M];
+                for j in 0..M {
+                    for c in 0..N {
+                        for ky in 0..K {
+                            for kx in 0..K {
+                                let $q = out.as_ptr().add(at(j, c, ky, kx));
+                                acc[j][c][ky][kx] = $get;
+                            }
+                        }
+                    }
+                }
+                for p in pixels.clone().step_by($lanes) {
+                    let $left = pixels.end - p;
+                    let $m = $mask;
+                    let mut g = [$zero; M];
+                    for (j, gv) in g.iter_mut().enumerate() {
+                        let $ptr = self.grad.as_ptr().add(j * gp + p);
+                        *gv = $load;
+                    }
+                    for c in 0..N {
+                        for ky in 0..K {
+                            let row = self.src.as_ptr().add(c * sp + ky * pw + p);
+                            for kx in 0..K {
+                                let $ptr = row.add(kx);
+                                let v = $load;
+                                for j in 0..M {
+                                    acc[j][c][ky][kx] = $fma(g[j], v, acc[j][c][ky][kx]);
+                                }
+                            }
+                        }
+                    }
+                }
+                for j in 0..M {
+                    for c in 0..N {
+                        for ky in 0..K {
+                            for kx in 0..K {
+                                let ($d, $v) = (out.as_mut_ptr().add(at(j, c, ky, kx)), acc[j][c][ky][kx]);
+                                $put;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    };
 }
 
 impl Taps<'_> {
-    /// Whether a block of `m` gradients × `n` input channels × `k²` taps over `rows` stays
-    /// inside the planes and an accumulator slice of `out` floats (lanes laid out for `nb`).
-    fn fits(&self, m: usize, n: usize, k: usize, rows: &Range<usize>, nb: usize, out: usize) -> bool {
-        let (w, h, pw) = (self.w, self.h, self.pw);
-        rows.end <= h
-            && self.grad.len() >= m * w * h
-            && self.src.len() >= (n.max(1) - 1) * pw * self.ph + (h + k - 1) * pw
+    /// Whether a block of `m` gradients × `n` input channels × `k²` taps over `pixels`
+    /// stays inside the planes and an accumulator slice of `out` floats (lanes laid out
+    /// for `nb`).
+    fn fits(&self, m: usize, n: usize, k: usize, pixels: &Range<usize>, nb: usize, out: usize) -> bool {
+        pixels.end <= self.gplane
+            && self.grad.len() >= m * self.gplane
+            && self.src.len() >= (n.max(1) - 1) * self.splane + pixels.end + (k - 1) * (self.pw + 1)
             && n <= nb
             && out >= m * nb * k * k * 16
     }
 
-    /// Adds `Σ grad[j]·src[c]` over `rows` at each of the `k²` taps to lane 0 of
-    /// `acc[((j·nb + c)·k² + tap)·16..]`.
+    /// Adds `Σ grad[j][p]·src[c][p + ky·pw + kx]` over `pixels` at each of the `k²` taps
+    /// to lane 0 of `acc[((j·nb + c)·k² + tap)·16..]`.
     #[allow(clippy::too_many_arguments)]
-    fn sum_scalar(&self, m: usize, n: usize, k: usize, nb: usize, rows: Range<usize>, acc: &mut [f32]) {
-        let (w, h, pw) = (self.w, self.h, self.pw);
+    fn sum_scalar(&self, m: usize, n: usize, k: usize, nb: usize, pixels: Range<usize>, acc: &mut [f32]) {
         for j in 0..m {
-            let g = &self.grad[j * w * h..][..w * h];
+            let g = &self.grad[j * self.gplane..][pixels.clone()];
             for c in 0..n {
-                let src = &self.src[c * pw * self.ph..];
                 for ky in 0..k {
                     for kx in 0..k {
-                        let mut s = 0f32;
-                        for y in rows.clone() {
-                            let row = &src[(y + ky) * pw + kx..][..w];
-                            s += g[y * w..][..w].iter().zip(row).map(|(a, b)| a * b).sum::<f32>();
-                        }
+                        let src = &self.src[c * self.splane + ky * self.pw + kx..][pixels.clone()];
+                        let s = g.iter().zip(src).map(|(a, b)| a * b).sum::<f32>();
                         acc[(((j * nb + c) * k + ky) * k + kx) * 16] += s;
                     }
                 }
@@ -629,118 +825,213 @@ impl Taps<'_> {
         }
     }
 
-    /// [`Taps::sum_scalar`] for `M` gradients, `N ≤ nb` input channels and `K × K` taps,
-    /// 16 pixels at a time into 16 lanes.
-    ///
-    /// # Safety
-    /// AVX-512F is available.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    #[allow(clippy::needless_range_loop)] // indices name the accumulator block's axes
-    unsafe fn sum_avx512<const M: usize, const N: usize, const K: usize>(
-        &self,
-        rows: Range<usize>,
-        nb: usize,
-        out: &mut [f32],
-    ) {
-        use std::arch::x86_64::*;
-        let (w, h, pw, pp) = (self.w, self.h, self.pw, self.pw * self.ph);
-        assert!(self.fits(M, N, K, &rows, nb, out.len()), "a weight-gradient block outside its planes");
-        // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
-        unsafe {
-            let mut acc = [[[[_mm512_setzero_ps(); K]; K]; N]; M];
-            for j in 0..M {
-                for c in 0..N {
-                    for ky in 0..K {
-                        for kx in 0..K {
-                            acc[j][c][ky][kx] =
-                                _mm512_loadu_ps(out.as_ptr().add((((j * nb + c) * K + ky) * K + kx) * 16));
-                        }
-                    }
+    taps_kernel! {
+        /// [`Taps::sum_scalar`] with AVX-512, 16 pixels at a time.
+        ///
+        /// # Safety
+        /// AVX-512F is available.
+        #[target_feature(enable = "avx512f")]
+        sum_avx512, 16, _mm512_setzero_ps(),
+        mask |left| if left >= 16 { u16::MAX } else { (1u16 << left) - 1 },
+        load |ptr, mask| _mm512_maskz_loadu_ps(mask, ptr),
+        _mm512_fmadd_ps,
+        get |q| _mm512_loadu_ps(q),
+        put |d, v| _mm512_storeu_ps(d, v),
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    taps_kernel! {
+        /// [`Taps::sum_scalar`] with AVX2, 8 pixels at a time.
+        ///
+        /// # Safety
+        /// AVX2 and FMA are available.
+        #[target_feature(enable = "avx2,fma")]
+        sum_avx2, 8, _mm256_setzero_ps(),
+        mask |left| _mm256_cmpgt_epi32(_mm256_set1_epi32(left.min(8) as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)),
+        load |ptr, mask| _mm256_maskload_ps(ptr, mask),
+        _mm256_fmadd_ps,
+        get |q| _mm256_loadu_ps(q),
+        put |d, v| _mm256_storeu_ps(d, v),
+    }
+}
+
+/// The weight gradient of 3×3 layers with more than 16 output channels, with the output
+/// channels in the vector lanes: the gradient is transposed to channels-last once, and
+/// each pixel then costs one aligned load per 16 output channels and one broadcast per
+/// tap, against 27 fused multiply-adds (the pixel-vector kernels of [`Taps`] load every
+/// tap's shifted row, mostly across cache lines). No lane is wasted at row ends, and each
+/// value is one lane summed over images and pixels in order.
+#[cfg(target_arch = "x86_64")]
+mod by_channel {
+    use super::Isa;
+    use rayon::prelude::*;
+
+    /// `src`: `items·cin` zero-padded planes (`(w + 2) × (h + 2)`); `grad`: `items·cout`
+    /// planes of `w × h`. Returns `[cout][cin][3][3]`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn weight_gradient(
+        isa: Isa,
+        src: &[f32],
+        grad: &[f32],
+        items: usize,
+        w: usize,
+        h: usize,
+        cin: usize,
+        cout: usize,
+    ) -> Vec<f32> {
+        let lanes = if isa == Isa::Avx512 { 16 } else { 8 };
+        let (plane, pw, splane, cp) = (w * h, w + 2, (w + 2) * (h + 2), cout.next_multiple_of(lanes));
+        // The channels-last gradient `[item][pixel][cp]`, 64-byte aligned so that no load
+        // crosses a cache line.
+        let mut store = vec![0f32; items * plane * cp + 16];
+        let skip = store.as_ptr().align_offset(64).min(16);
+        let gt = &mut store[skip..skip + items * plane * cp];
+        gt.par_chunks_mut(plane * cp).enumerate().for_each(|(i, dst)| {
+            for co in 0..cout {
+                for (p, &v) in grad[(i * cout + co) * plane..][..plane].iter().enumerate() {
+                    dst[p * cp + co] = v;
                 }
             }
-            for y in rows {
-                for x in (0..w).step_by(16) {
-                    let mask = if w - x >= 16 { u16::MAX } else { (1u16 << (w - x)) - 1 };
-                    let mut g = [_mm512_setzero_ps(); M];
-                    for (j, gv) in g.iter_mut().enumerate() {
-                        *gv = _mm512_maskz_loadu_ps(mask, self.grad.as_ptr().add(j * w * h + y * w + x));
-                    }
-                    for c in 0..N {
-                        for ky in 0..K {
-                            let row = self.src.as_ptr().add(c * pp + (y + ky) * pw + x);
-                            for kx in 0..K {
-                                let v = _mm512_maskz_loadu_ps(mask, row.add(kx));
-                                for j in 0..M {
-                                    acc[j][c][ky][kx] = _mm512_fmadd_ps(g[j], v, acc[j][c][ky][kx]);
+        });
+        let gt = &*gt;
+        // Blocks of up to 3 vectors of output channels (27 accumulators).
+        let vecs = cp / lanes;
+        let mv = if vecs % 3 == 0 || vecs > 4 { 3 } else { vecs.min(2) };
+        let blocks: Vec<(usize, usize)> = (0..vecs).step_by(mv).map(|v| (v, (vecs - v).min(mv))).collect();
+        // Tasks: a block × a group of input channels; rows go in runs of ~256 pixels, so
+        // a run's gradient stays in L1 while each channel of the group uses it.
+        let group = 4;
+        let run = (256 / w.max(1)).max(1);
+        let ci_groups = cin.div_ceil(group);
+        let sums: Vec<Vec<f32>> = (0..blocks.len() * ci_groups)
+            .into_par_iter()
+            .map(|t| {
+                let ((v0, m), c0) = (blocks[t / ci_groups], t % ci_groups * group);
+                let channels = c0..(c0 + group).min(cin);
+                let mut acc = vec![0f32; channels.len() * 3 * 9 * lanes];
+                for i in 0..items {
+                    for y0 in (0..h).step_by(run) {
+                        let rows = y0..(y0 + run).min(h);
+                        for (ci, acc) in channels.clone().zip(acc.chunks_mut(3 * 9 * lanes)) {
+                            let job = Job {
+                                gt: gt[i * plane * cp + v0 * lanes..].as_ptr(),
+                                cp,
+                                src: &src[(i * cin + ci) * splane..][..splane],
+                                w,
+                                pw,
+                                rows: rows.clone(),
+                            };
+                            // SAFETY: the instructions are available (detected); `job`'s
+                            // pointers cover `m` vectors of every pixel of the rows.
+                            unsafe {
+                                match isa {
+                                    Isa::Avx512 => with_const!(m, M => job.sum_avx512::<M>(acc), [3 2] else 1),
+                                    _ => with_const!(m, M => job.sum_avx2::<M>(acc), [3 2] else 1),
                                 }
                             }
                         }
                     }
                 }
-            }
-            for j in 0..M {
-                for c in 0..N {
-                    for ky in 0..K {
-                        for kx in 0..K {
-                            let at = out.as_mut_ptr().add((((j * nb + c) * K + ky) * K + kx) * 16);
-                            _mm512_storeu_ps(at, acc[j][c][ky][kx]);
+                acc
+            })
+            .collect();
+        let mut out = vec![0f32; cout * cin * 9];
+        for (t, acc) in sums.iter().enumerate() {
+            let ((v0, m), c0) = (blocks[t / ci_groups], t % ci_groups * group);
+            for (n, acc) in acc.chunks(3 * 9 * lanes).enumerate() {
+                let ci = c0 + n;
+                for v in 0..m {
+                    for tap in 0..9 {
+                        for l in 0..lanes {
+                            let co = (v0 + v) * lanes + l;
+                            if co < cout && ci < cin {
+                                out[(co * cin + ci) * 9 + tap] = acc[(v * 9 + tap) * lanes + l];
+                            }
                         }
                     }
                 }
             }
         }
+        out
     }
-}
 
-impl Taps<'_> {
-    /// [`Taps::sum_avx512`] with AVX2: 8 pixels at a time into the first 8 of 16 lanes.
-    ///
-    /// # Safety
-    /// AVX2 and FMA are available.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::needless_range_loop)] // indices name the accumulator block's axes
-    unsafe fn sum_avx2<const M: usize, const N: usize, const K: usize>(
-        &self,
-        rows: Range<usize>,
-        nb: usize,
-        out: &mut [f32],
-    ) {
-        use std::arch::x86_64::*;
-        let (w, h, pw, pp) = (self.w, self.h, self.pw, self.pw * self.ph);
-        assert!(self.fits(M, N, K, &rows, nb, out.len()), "a weight-gradient block outside its planes");
-        let lane = |i: usize| ((((i / (N * K * K)) * nb + (i / (K * K)) % N) * K + (i / K) % K) * K + i % K) * 16;
-        // SAFETY: masked lanes are not read; the rest stay inside the slices (checked).
-        unsafe {
-            let mut acc = [[[[_mm256_setzero_ps(); K]; K]; N]; M];
-            for (i, a) in acc.iter_mut().flatten().flatten().flatten().enumerate() {
-                *a = _mm256_loadu_ps(out.as_ptr().add(lane(i)));
-            }
-            for y in rows {
-                for x in (0..w).step_by(8) {
-                    let left = (w - x).min(8) as i32;
-                    let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-                    let mut g = [_mm256_setzero_ps(); M];
-                    for (j, gv) in g.iter_mut().enumerate() {
-                        *gv = _mm256_maskload_ps(self.grad.as_ptr().add(j * w * h + y * w + x), mask);
+    /// One call's operands: the channels-last gradient at pixel 0 of the block's first
+    /// vector, one input channel's padded plane, and the rows to sum.
+    struct Job<'a> {
+        gt: *const f32,
+        cp: usize,
+        src: &'a [f32],
+        w: usize,
+        pw: usize,
+        rows: std::ops::Range<usize>,
+    }
+
+    /// Defines a kernel adding, for `M` vectors of output channels and the 9 taps,
+    /// `Σ gt[p][co]·src[p + tap]` over the job's rows to `acc[(v·9 + tap)·lanes + l]`.
+    macro_rules! by_channel_kernel {
+        ($(#[$attr:meta])* $name:ident, $lanes:literal, $load:ident, $store:ident, $set1:ident, $fma:ident) => {
+            $(#[$attr])*
+            #[allow(clippy::needless_range_loop)] // indices name the accumulator block's axes
+            unsafe fn $name<const M: usize>(&self, acc: &mut [f32]) {
+                use std::arch::x86_64::*;
+                let (w, pw, cp) = (self.w, self.pw, self.cp);
+                assert!(acc.len() >= M * 9 * $lanes && (self.rows.end + 1) * pw + w + 1 < self.src.len());
+                // SAFETY: the gradient holds M vectors at every pixel of the rows (caller);
+                // the largest source index is (rows.end + 1)·pw + w + 1 (checked).
+                unsafe {
+                    let mut a = [[$set1(0.0); 9]; M];
+                    for v in 0..M {
+                        for t in 0..9 {
+                            a[v][t] = $load(acc.as_ptr().add((v * 9 + t) * $lanes));
+                        }
                     }
-                    for c in 0..N {
-                        for ky in 0..K {
-                            let row = self.src.as_ptr().add(c * pp + (y + ky) * pw + x);
-                            for kx in 0..K {
-                                let v = _mm256_maskload_ps(row.add(kx), mask);
-                                for j in 0..M {
-                                    acc[j][c][ky][kx] = _mm256_fmadd_ps(g[j], v, acc[j][c][ky][kx]);
+                    let src = self.src.as_ptr();
+                    for y in self.rows.clone() {
+                        let g_row = self.gt.add(y * w * cp);
+                        let s_row = src.add(y * pw);
+                        for x in 0..w {
+                            let mut g = [$set1(0.0); M];
+                            for v in 0..M {
+                                g[v] = $load(g_row.add(x * cp + v * $lanes));
+                            }
+                            for ky in 0..3 {
+                                for kx in 0..3 {
+                                    let s = $set1(*s_row.add(ky * pw + x + kx));
+                                    for v in 0..M {
+                                        a[v][ky * 3 + kx] = $fma(g[v], s, a[v][ky * 3 + kx]);
+                                    }
                                 }
                             }
                         }
                     }
+                    for v in 0..M {
+                        for t in 0..9 {
+                            $store(acc.as_mut_ptr().add((v * 9 + t) * $lanes), a[v][t]);
+                        }
+                    }
                 }
             }
-            for (i, a) in acc.iter().flatten().flatten().flatten().enumerate() {
-                _mm256_storeu_ps(out.as_mut_ptr().add(lane(i)), *a);
-            }
+        };
+    }
+
+    impl Job<'_> {
+        by_channel_kernel! {
+            /// 16 output channels per vector.
+            ///
+            /// # Safety
+            /// AVX-512F is available.
+            #[target_feature(enable = "avx512f")]
+            sum_avx512, 16, _mm512_loadu_ps, _mm512_storeu_ps, _mm512_set1_ps, _mm512_fmadd_ps
+        }
+
+        by_channel_kernel! {
+            /// 8 output channels per vector.
+            ///
+            /// # Safety
+            /// AVX2 and FMA are available.
+            #[target_feature(enable = "avx2,fma")]
+            sum_avx2, 8, _mm256_loadu_ps, _mm256_storeu_ps, _mm256_set1_ps, _mm256_fmadd_ps
         }
     }
 }
@@ -784,29 +1075,31 @@ mod tests {
 
     #[test]
     fn every_instruction_set_gives_the_same_bits() {
-        // More input channels than one chunk, more rows than one band, a ragged last block.
-        let (cin, cout, k, w, h) = (20, 11, 3, 45, 11);
-        let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
-        let layer = ConvLayer::new(&SplitMix64(8).centred(cout * cin * 9), &SplitMix64(9).centred(cout), cin, k);
-        let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-        let run = |isa: Isa| {
-            let mut pad = Vec::new();
-            pad_into(&mut pad, &input.data, cin, w, h, 1);
-            let mut out = Planes::zeros(cout, w, h);
-            let job = Job { src: &pad, layer: &layer, w, h, pw: w + 2, ph: h + 2, y0: 0, relu: false, isa };
-            for y in 0..h {
+        // More input channels than one chunk, more rows than one band, a ragged last
+        // block; widths that take the row-wise (45) and the flat (24, 12) AVX-512 paths.
+        for (cin, cout, k, w, h) in [(20, 11, 3, 45, 11), (20, 11, 3, 24, 11), (7, 9, 3, 12, 5), (6, 5, 1, 12, 9)] {
+            let r = (k - 1) / 2;
+            let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
+            let layer =
+                ConvLayer::new(&SplitMix64(8).centred(cout * cin * k * k), &SplitMix64(9).centred(cout), cin, k);
+            let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            let run = |isa: Isa| {
+                let mut pad = Vec::new();
+                pad_rows(&mut pad, &input.data, cin, w, h, r, 0, h);
+                let mut out = Planes::zeros(cout, w, h);
+                let job = Job { src: &pad, layer: &layer, w, h, pw: w + 2 * r, ph: h + 2 * r, y0: 0, relu: false, isa };
                 // SAFETY: single-threaded; rows inside the buffer.
-                unsafe { job.row(y, out.data.as_mut_ptr()) };
+                unsafe { job.rows(0..h, out.data.as_mut_ptr(), &mut Vec::new()) };
+                bits(&out.data)
+            };
+            let scalar = run(Isa::Scalar);
+            assert_eq!(run(Isa::detect()), scalar, "{w}×{h}");
+            // The banded, parallel path of `conv` too.
+            assert_eq!(bits(&conv(&input, &layer, false).data), scalar, "{w}×{h}");
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                assert_eq!(run(Isa::Avx2), scalar, "{w}×{h}");
             }
-            bits(&out.data)
-        };
-        let scalar = run(Isa::Scalar);
-        assert_eq!(run(Isa::detect()), scalar);
-        // The banded, parallel path of `conv` too.
-        assert_eq!(bits(&conv(&input, &layer, false).data), scalar);
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-            assert_eq!(run(Isa::Avx2), scalar);
         }
     }
 
@@ -833,7 +1126,10 @@ mod tests {
     fn gradients_match_candle() {
         use candle_core::Var;
         // 3×3 and 1×1, channel counts around the register blocks.
-        for (cin, cout, k, w, h) in [(5, 7, 3, 19, 6), (9, 6, 1, 21, 5), (3, 2, 3, 33, 2)] {
+        // More than 16 outputs take the channel-vector path (3 and 2 vectors with AVX-512).
+        for (cin, cout, k, w, h) in
+            [(5, 7, 3, 19, 6), (9, 6, 1, 21, 5), (3, 2, 3, 33, 2), (5, 37, 3, 19, 6), (6, 20, 3, 9, 7)]
+        {
             let x = SplitMix64(11).centred(2 * cin * w * h);
             let wt = SplitMix64(12).centred(cout * cin * k * k);
             let g = SplitMix64(13).centred(2 * cout * w * h);

@@ -5,6 +5,7 @@
 use super::conv::{ConvLayer, conv_batch, weight_gradient};
 use super::planes::{self, Planes};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Storage, Tensor};
+use rayon::prelude::*;
 
 /// The contiguous `f32` values of a tensor operand.
 fn values<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> Result<&'a [f32]> {
@@ -21,6 +22,25 @@ fn with_values<R>(t: &Tensor, what: &str, f: impl FnOnce(&[f32]) -> Result<R>) -
         Storage::Cpu(s) => f(values(s, layout, what)?),
         _ => candle_core::bail!("{what}: kpcn's kernels run on the CPU"),
     }
+}
+
+/// The sum of `v` in 16 interleaved partial sums, then pairwise: a fixed order that
+/// vectorises (a running sum is one long chain of dependent adds).
+fn sum(v: &[f32]) -> f32 {
+    let mut lanes = [0f32; 16];
+    let chunks = v.chunks_exact(16);
+    let tail: f32 = chunks.remainder().iter().sum();
+    for c in chunks {
+        for (l, x) in lanes.iter_mut().zip(c) {
+            *l += x;
+        }
+    }
+    for half in [8, 4, 2, 1] {
+        for i in 0..half {
+            lanes[i] += lanes[i + half];
+        }
+    }
+    lanes[0] + tail
 }
 
 /// A "same" zero-padded convolution plus bias, then ReLU when `relu`: `x`
@@ -64,18 +84,25 @@ impl CustomOp3 for Conv {
         let (b, cin, h, w) = x.dims4()?;
         let (cout, _, k, _) = wt.dims4()?;
         let grad = grad.contiguous()?;
-        // ReLU passes the gradient where its output is positive.
-        let g: Vec<f32> = with_values(&grad, "kpcn-conv gradient", |g| {
-            if !self.relu {
-                return Ok(g.to_vec());
+        // ReLU passes the gradient where its output is positive (written in parallel into a
+        // pooled buffer, never zeroed first); each plane's sum goes to its channel's bias
+        // gradient, in plane order.
+        let mut g = super::buffers::with_capacity(b * cout * h * w);
+        with_values(&grad, "kpcn-conv gradient", |grad| {
+            if self.relu {
+                with_values(out, "kpcn-conv output", |o| {
+                    grad.par_iter().zip(o).map(|(&d, &o)| if o > 0.0 { d } else { 0.0 }).collect_into_vec(&mut g);
+                    Ok(())
+                })
+            } else {
+                grad.par_iter().copied().collect_into_vec(&mut g);
+                Ok(())
             }
-            with_values(out, "kpcn-conv output", |o| {
-                Ok(g.iter().zip(o).map(|(&g, &o)| if o > 0.0 { g } else { 0.0 }).collect())
-            })
         })?;
+        let sums: Vec<f32> = g.par_chunks(h * w).map(sum).collect();
         let mut db = vec![0f32; cout];
-        for (i, plane) in g.chunks(h * w).enumerate() {
-            db[i % cout] += plane.iter().sum::<f32>();
+        for (i, s) in sums.iter().enumerate() {
+            db[i % cout] += s;
         }
         let (dx, dw) = with_values(wt, "kpcn-conv weights", |wv| {
             let back = ConvLayer::transposed(wv, cout, cin, k);
@@ -83,6 +110,7 @@ impl CustomOp3 for Conv {
             let dw = with_values(x, "kpcn-conv input", |xv| Ok(weight_gradient(xv, &g, b, w, h, cin, cout, k)))?;
             Ok((dx, dw))
         })?;
+        super::buffers::recycle(g);
         Ok((
             Some(Tensor::from_vec(dx, (b, cin, h, w), x.device())?),
             Some(Tensor::from_vec(dw, (cout, cin, k, k), wt.device())?),
