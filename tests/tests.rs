@@ -8,6 +8,7 @@ mod denoise;
 mod eval;
 mod io_errors;
 mod io_roundtrip;
+mod layering;
 mod layout_files;
 mod plugins;
 mod reliability;

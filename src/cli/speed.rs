@@ -185,7 +185,7 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
     let (m, _) = arch.train_margins();
     let (batch, side) = (6, 64 + 2 * m);
     let shapes = multiscale::layer_shapes(&arch);
-    // Inference runs the full-resolution head split in two (see kernel::pyramid).
+    // Inference runs the full-resolution head split in two (see model::pyramid).
     let (_, head) = multiscale::layer_offsets(&arch);
     let last = shapes.len() - 1;
     let (c1, outs) = (multiscale::width(&arch, 1), shapes[last].0);

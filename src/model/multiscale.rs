@@ -18,8 +18,9 @@
 //! scale `s = L−1..0` on `F_s` (`s > 0`) or `nearest-up(F_1) ++ E_0` (`s = 0`), giving `k²`
 //! kernel logits plus one blend logit (not at the coarsest scale).
 //!
-//! The same function is evaluated here with candle (training, autograd) and by
-//! `kernel::pyramid` (inference, our own kernels).
+//! The network is written once, in [`run`], over the operations of a [`Backend`]:
+//! candle tensors for training ([`Graph`], differentiable) and plain planes for
+//! inference (`super::pyramid`). Both call the same kernels.
 
 use super::{Architecture, BranchWeights, ModelError};
 use crate::features::INPUT_CHANNELS;
@@ -147,62 +148,137 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: super::Clamp) -> Vec<
     colour
 }
 
-/// Evaluates a branch on a region: features `[B, 27, S, S']` and the noisy colour `c̃`
-/// `[B, 3, S, S']` of the same pixels (sides multiples of [`Architecture::alignment`]);
-/// returns the denoised `c̃` `[B, 3, S, S']`. `ops` picks the implementation. Convolutions pad with zeros and kernels
-/// replicate the edge, so only pixels at least [`receptive_radius`] inside the region
-/// equal the whole frame's.
-pub fn forward(
-    a: &Architecture,
-    w: &BranchWeights,
-    input: &Tensor,
-    noisy: &Tensor,
-    ops: Ops,
-) -> Result<Tensor, ModelError> {
+/// What the multi-scale network is made of, on one kind of value. Layers are named by
+/// their index in [`layer_shapes`].
+pub trait Backend {
+    /// An activation: channels at one scale (of one region, or of a batch).
+    type Value;
+    /// What an operation can fail with.
+    type Error;
+
+    /// Convolution `layer` of `x`, then ReLU when `relu`.
+    fn conv(&self, x: &Self::Value, layer: usize, relu: bool) -> Result<Self::Value, Self::Error>;
+
+    /// 2×2 average pooling.
+    fn pool(&self, x: &Self::Value) -> Result<Self::Value, Self::Error>;
+
+    /// Convolution `layer` of `nearest-up(coarse) ++ skip`: the decoder's layers and the
+    /// full-resolution head.
+    fn conv_up_concat(
+        &self,
+        coarse: &Self::Value,
+        skip: &Self::Value,
+        layer: usize,
+        relu: bool,
+    ) -> Result<Self::Value, Self::Error>;
+
+    /// The noisy colour at scales `0..levels` ([`colour_pyramid`]).
+    fn colour(&self, noisy: Self::Value, levels: usize) -> Result<Vec<Self::Value>, Self::Error>;
+
+    /// The softmax kernels of `logits` (its first `k²` channels) applied to `colour`,
+    /// extended by replicating its edges.
+    fn apply(&self, logits: &Self::Value, colour: &Self::Value) -> Result<Self::Value, Self::Error>;
+
+    /// `(1 − α)·fine + α·up(coarse)`, with `α` the sigmoid of channel `k²` of `logits`.
+    fn blend(&self, fine: Self::Value, coarse: &Self::Value, logits: &Self::Value) -> Result<Self::Value, Self::Error>;
+}
+
+/// The multi-scale network on a region: `input` its features (27 channels) and `noisy`
+/// its colour `c̃` (3 channels), sides multiples of [`Architecture::alignment`]; returns
+/// the denoised `c̃`. Convolutions pad with zeros and kernels replicate the edge, so only
+/// pixels at least [`receptive_radius`] inside the region equal the whole frame's.
+pub fn run<B: Backend>(a: &Architecture, b: &B, input: B::Value, noisy: B::Value) -> Result<B::Value, B::Error> {
     let l = a.layers;
     let (dec, head) = layer_offsets(a);
-    let conv = |x: &Tensor, i: usize, relu: bool| -> Result<Tensor, ModelError> {
-        let (wt, b) = &w.layers[i];
-        Ok(ops.conv2d(x, wt, b, relu)?)
-    };
-    let mut enc: Vec<Tensor> = Vec::with_capacity(l + 1);
-    for s in 0..=l {
-        let x = if s == 0 { input.clone() } else { enc[s - 1].avg_pool2d(2)? };
-        let x = conv(&x, 2 * s, true)?;
-        enc.push(conv(&x, 2 * s + 1, true)?);
+    let mut enc: Vec<B::Value> = Vec::with_capacity(l + 1);
+    let first = b.conv(&input, 0, true)?;
+    drop(input);
+    enc.push(b.conv(&first, 1, true)?);
+    drop(first);
+    for s in 1..=l {
+        let x = b.conv(&b.pool(&enc[s - 1])?, 2 * s, true)?;
+        enc.push(b.conv(&x, 2 * s + 1, true)?);
     }
-    let mut feats: Vec<Tensor> = enc.clone();
+    // F_s: the decoder's output at scale s (the encoder's at the bottom); F_0 is unused.
+    let mut feats: Vec<Option<B::Value>> = (0..=l).map(|_| None).collect();
     for (j, s) in (1..l).rev().enumerate() {
-        let x = ops.up_concat(&feats[s + 1], &enc[s])?;
-        feats[s] = conv(&x, dec + j, true)?;
+        let below = feats[s + 1].as_ref().unwrap_or(&enc[s + 1]);
+        feats[s] = Some(b.conv_up_concat(below, &enc[s], dec + j, true)?);
     }
-    // The noisy colour is data, not a function of the weights: its pyramid needs no
-    // gradient and is built by the same code as at inference.
-    let (b, _, hh, ww) = noisy.dims4()?;
-    let items: Vec<Vec<Planes>> = (0..b)
-        .map(|i| Ok(colour_pyramid(Planes::from_vec(3, ww, hh, noisy.get(i)?.flatten_all()?.to_vec1()?), l, a.clamp)))
-        .collect::<Result<_, ModelError>>()?;
-    let colour: Vec<Tensor> = (0..l)
-        .map(|s| {
-            let (sw, sh) = (ww >> s, hh >> s);
-            let data: Vec<f32> = items.iter().flat_map(|p| p[s].data.iter().copied()).collect();
-            Ok(Tensor::from_vec(data, (b, 3, sh, sw), noisy.device())?)
-        })
-        .collect::<Result<_, ModelError>>()?;
-    let (k, r) = (a.kernel_size, (a.kernel_size - 1) / 2);
-    let mut out: Option<Tensor> = None;
+    let feat = |s: usize| feats[s].as_ref().unwrap_or(&enc[s]);
+    let colour = b.colour(noisy, l)?;
+    let mut out: Option<B::Value> = None;
     for (j, s) in (0..l).rev().enumerate() {
-        let x = if s == 0 { ops.up_concat(&feats[1], &enc[0])? } else { feats[s].clone() };
-        let h = conv(&x, head + j, false)?;
-        let logits = h.narrow(1, 0, k * k)?;
-        let padded = colour[s].pad_with_same(2, r, r)?.pad_with_same(3, r, r)?;
-        let o = ops.apply_kernels(&logits, &padded, k)?;
+        let logits = if s == 0 {
+            b.conv_up_concat(feat(1), &enc[0], head + j, false)?
+        } else {
+            b.conv(feat(s), head + j, false)?
+        };
+        let o = b.apply(&logits, &colour[s])?;
         out = Some(match out {
             None => o,
-            Some(coarse) => ops.blend(&o, &coarse, &h.narrow(1, k * k, 1)?)?,
+            Some(coarse) => b.blend(o, &coarse, &logits)?,
         });
     }
     Ok(out.expect("validated: at least one level"))
+}
+
+/// A branch as a candle graph on batches `[B, C, H, W]`, for training: `ops` picks our
+/// kernels (with their backward passes) or candle's stock ones.
+pub struct Graph<'a> {
+    /// The architecture.
+    pub arch: &'a Architecture,
+    /// The branch's weights.
+    pub weights: &'a BranchWeights,
+    /// The implementation.
+    pub ops: Ops,
+}
+
+impl Backend for Graph<'_> {
+    type Value = Tensor;
+    type Error = ModelError;
+
+    fn conv(&self, x: &Tensor, layer: usize, relu: bool) -> Result<Tensor, ModelError> {
+        let (wt, b) = &self.weights.layers[layer];
+        Ok(self.ops.conv2d(x, wt, b, relu)?)
+    }
+
+    fn pool(&self, x: &Tensor) -> Result<Tensor, ModelError> {
+        Ok(x.avg_pool2d(2)?)
+    }
+
+    fn conv_up_concat(&self, coarse: &Tensor, skip: &Tensor, layer: usize, relu: bool) -> Result<Tensor, ModelError> {
+        self.conv(&self.ops.up_concat(coarse, skip)?, layer, relu)
+    }
+
+    fn colour(&self, noisy: Tensor, levels: usize) -> Result<Vec<Tensor>, ModelError> {
+        // The noisy colour is data, not a function of the weights: its pyramid needs no
+        // gradient and is built by the same code as at inference.
+        let (b, _, hh, ww) = noisy.dims4()?;
+        let items: Vec<Vec<Planes>> = (0..b)
+            .map(|i| {
+                let data = noisy.get(i)?.flatten_all()?.to_vec1()?;
+                Ok(colour_pyramid(Planes::from_vec(3, ww, hh, data), levels, self.arch.clamp))
+            })
+            .collect::<Result<_, ModelError>>()?;
+        (0..levels)
+            .map(|s| {
+                let data: Vec<f32> = items.iter().flat_map(|p| p[s].data.iter().copied()).collect();
+                Ok(Tensor::from_vec(data, (b, 3, hh >> s, ww >> s), noisy.device())?)
+            })
+            .collect()
+    }
+
+    fn apply(&self, logits: &Tensor, colour: &Tensor) -> Result<Tensor, ModelError> {
+        let (k, r) = (self.arch.kernel_size, (self.arch.kernel_size - 1) / 2);
+        let padded = colour.pad_with_same(2, r, r)?.pad_with_same(3, r, r)?;
+        Ok(self.ops.apply_kernels(&logits.narrow(1, 0, k * k)?, &padded, k)?)
+    }
+
+    fn blend(&self, fine: Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Tensor, ModelError> {
+        let k2 = self.arch.kernel_size * self.arch.kernel_size;
+        Ok(self.ops.blend(&fine, coarse, &logits.narrow(1, k2, 1)?)?)
+    }
 }
 
 #[cfg(test)]

@@ -1,9 +1,10 @@
-//! Inference of the multi-scale network ([`super::multiscale`], which defines it and
-//! evaluates it as a candle graph for training) on one region, on plain arrays with the
-//! same kernels: [`crate::kernel::conv`] convolutions and [`crate::kernel::apply`] kernel
-//! application at every scale.
+//! Inference of the multi-scale network ([`multiscale::run`], which defines it once) on
+//! one region: a [`multiscale::Backend`] on plain planes with the same kernels as
+//! training, [`crate::kernel::conv`] convolutions and [`crate::kernel::apply`] kernel
+//! application at every scale, and none of candle's graph.
 
-use super::{Architecture, BranchWeights, ModelError, multiscale};
+use super::multiscale::{self, Backend};
+use super::{Architecture, BranchWeights, ModelError};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::conv::{ConvLayer, conv};
 use crate::kernel::planes::{Planes, blend};
@@ -66,51 +67,61 @@ pub fn forward(
     w: usize,
     h: usize,
 ) -> [Vec<f32>; 3] {
-    let l = arch.layers;
-    let (dec, head) = multiscale::layer_offsets(arch);
-    let layers = &weights.layers;
-    let layer = |x: &Planes, i: usize, relu: bool| conv(x, &layers[i], relu);
-
-    let mut enc: Vec<Planes> = Vec::with_capacity(l + 1);
     let input = Planes::from_vec(INPUT_CHANNELS, w, h, input);
-    for s in 0..=l {
-        let x = if s == 0 { layer(&input, 0, true) } else { layer(&enc[s - 1].avg_pool2(), 2 * s, true) };
-        enc.push(layer(&x, 2 * s + 1, true));
-    }
-    drop(input);
-    // F_s: the decoder's output at scale s (the encoder's at the bottom); F_0 is unused.
-    let mut feats: Vec<Option<Planes>> = (0..=l).map(|_| None).collect();
-    for (j, s) in (1..l).rev().enumerate() {
-        let below = feats[s + 1].as_ref().unwrap_or(&enc[s + 1]);
-        feats[s] = Some(layer(&below.up_nearest().concat(&enc[s]), dec + j, true));
-    }
-    let feat = |s: usize| feats[s].as_ref().unwrap_or(&enc[s]);
-    let colour = multiscale::colour_pyramid(Planes::from_vec(3, w, h, noisy), l, arch.clamp);
-
-    let (k, k2) = (arch.kernel_size, arch.kernel_size * arch.kernel_size);
-    let mut out: Option<Planes> = None;
-    for (j, s) in (0..l).rev().enumerate() {
-        let logits = if s == 0 {
-            let coarse = conv(feat(1), &weights.head0[0], false);
-            let mut fine = conv(&enc[0], &weights.head0[1], false);
-            fine.add_up_nearest(&coarse);
-            fine
-        } else {
-            conv(feat(s), &layers[head + j], false)
-        };
-        let o = apply_replicated(&logits, &colour[s], k);
-        out = Some(match out {
-            None => o,
-            Some(coarse) => {
-                let mut blended = o;
-                blend(&mut blended, &coarse.up_bilinear(), logits.plane(k2));
-                blended
-            }
-        });
-    }
-    let out = out.expect("validated: at least one level");
+    let noisy = Planes::from_vec(3, w, h, noisy);
+    let out = match multiscale::run(arch, &Region { arch, weights }, input, noisy) {
+        Ok(out) => out,
+        Err(e) => match e {},
+    };
     let n = w * h;
     [0, 1, 2].map(|c| out.data[c * n..(c + 1) * n].to_vec())
+}
+
+/// A branch's packed weights as a [`Backend`] on planes, which cannot fail.
+struct Region<'a> {
+    arch: &'a Architecture,
+    weights: &'a Weights,
+}
+
+impl Backend for Region<'_> {
+    type Value = Planes;
+    type Error = std::convert::Infallible;
+
+    fn conv(&self, x: &Planes, layer: usize, relu: bool) -> Result<Planes, Self::Error> {
+        Ok(conv(x, &self.weights.layers[layer], relu))
+    }
+
+    fn pool(&self, x: &Planes) -> Result<Planes, Self::Error> {
+        Ok(x.avg_pool2())
+    }
+
+    fn conv_up_concat(&self, coarse: &Planes, skip: &Planes, layer: usize, relu: bool) -> Result<Planes, Self::Error> {
+        if layer + 1 < self.weights.layers.len() {
+            return self.conv(&coarse.up_nearest().concat(skip), layer, relu);
+        }
+        // The full-resolution head, split (see [`Weights`]).
+        let [up, own] = &self.weights.head0;
+        let coarse = conv(coarse, up, false);
+        let mut fine = conv(skip, own, false);
+        fine.add_up_nearest(&coarse);
+        if relu {
+            fine.data.iter_mut().for_each(|v| *v = v.max(0.0));
+        }
+        Ok(fine)
+    }
+
+    fn colour(&self, noisy: Planes, levels: usize) -> Result<Vec<Planes>, Self::Error> {
+        Ok(multiscale::colour_pyramid(noisy, levels, self.arch.clamp))
+    }
+
+    fn apply(&self, logits: &Planes, colour: &Planes) -> Result<Planes, Self::Error> {
+        Ok(apply_replicated(logits, colour, self.arch.kernel_size))
+    }
+
+    fn blend(&self, mut fine: Planes, coarse: &Planes, logits: &Planes) -> Result<Planes, Self::Error> {
+        blend(&mut fine, &coarse.up_bilinear(), logits.plane(self.arch.kernel_size * self.arch.kernel_size));
+        Ok(fine)
+    }
 }
 
 /// Softmax kernels (the first `k²` planes of `logits`) applied to `colour`, the colour
@@ -156,7 +167,8 @@ mod tests {
         let c = Tensor::from_vec(noisy.clone(), (1, 3, h, w), &Device::Cpu).unwrap();
         for (branch, weights) in [("diffuse", &m.diffuse), ("specular", &m.specular)] {
             let ours = forward(&arch, &Weights::new(&arch, weights).unwrap(), input.clone(), noisy.clone(), w, h);
-            let theirs = multiscale::forward(&arch, weights, &x, &c, crate::kernel::ops::Ops::StockCandle).unwrap();
+            let graph = multiscale::Graph { arch: &arch, weights, ops: crate::kernel::ops::Ops::StockCandle };
+            let theirs = multiscale::run(&arch, &graph, x.clone(), c.clone()).unwrap();
             let theirs = theirs.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             for c in 0..3 {
                 for i in 0..w * h {

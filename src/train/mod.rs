@@ -164,7 +164,8 @@ impl TrainableModel {
         if arch.design == Design::MultiScale {
             let (m, _) = arch.train_margins();
             let (_, _, h, wd) = input.dims4()?;
-            let out = multiscale::forward(arch, &w, input, noisy, self.ops)?;
+            let graph = multiscale::Graph { arch, weights: &w, ops: self.ops };
+            let out = multiscale::run(arch, &graph, input.clone(), noisy.clone())?;
             return Ok(out.narrow(2, m, h - 2 * m)?.narrow(3, m, wd - 2 * m)?);
         }
         let out = w.forward(input)?;
