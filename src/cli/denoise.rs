@@ -71,11 +71,12 @@ pub struct DenoiseArgs {
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
-    /// Working memory in MB that grows with the frame: each band of rows in flight
-    /// (every channel of the band, the network inputs and features) and each tile's network
-    /// activations are kept within it. Not counted: the process's fixed cost (program,
-    /// libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB). Measured peak RSS
-    /// for a 1920x1152 frame with 38 channels: 64 -> 478 MB, 512 -> 874, 1024 -> 1262.
+    /// Working memory in MB that grows with the frame: each band of rows in flight (every
+    /// channel of the band, the network inputs and features) is sized to half of it, each
+    /// tile's network activations to all of it. Not counted: the process's fixed cost
+    /// (program, libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB).
+    /// Measured peak RSS for a 1920x1152 frame with 38 channels: 64 -> 487 MB, 512 -> 712,
+    /// 1024 -> 862; 3840x2160 with 41 channels at the default: 879 MB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.

@@ -17,6 +17,7 @@
 //! transposed weights ([`ConvLayer::transposed`]).
 
 use super::planes::Planes;
+use super::simd::Isa;
 use rayon::prelude::*;
 use std::borrow::Cow;
 use std::ops::Range;
@@ -194,29 +195,6 @@ pub fn conv_batch(input: &[f32], items: usize, w: usize, h: usize, layer: &ConvL
     // writes columns 0..w of its rows).
     unsafe { out.set_len(items * n_out) };
     out
-}
-
-/// The instruction set the micro-kernels use, detected at run time.
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-enum Isa {
-    Avx512,
-    Avx2,
-    Scalar,
-}
-
-impl Isa {
-    fn detect() -> Isa {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if super::simd::avx512() {
-                return Isa::Avx512;
-            }
-            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                return Isa::Avx2;
-            }
-        }
-        Isa::Scalar
-    }
 }
 
 struct Job<'a> {
@@ -626,19 +604,23 @@ fn weight_gradient_on(
     let block = mb * nb * k2;
     let per_block = ci_blocks * block;
     let run = (32768 / cin.max(1)).next_multiple_of(16).clamp(16, gplane.max(16));
-    // One task per group of output-channel blocks: a run of pixels of every input
-    // channel is read from memory once per group (the runs of a large 1×1 layer would
-    // otherwise stream from memory once per block). Groups are as large as the thread
-    // count and ~256 KiB of lanes allow; they change no value's order of summation, and
-    // each value sums images, runs and lanes in one fixed order.
+    // One task per group of output-channel blocks and half of the images: a run of
+    // pixels of every input channel is read from memory once per group (the runs of a
+    // large 1×1 layer would otherwise stream from memory once per block), and the halves
+    // keep both threads busy when there are few groups. Group sizes (from the thread
+    // count and ~256 KiB of lanes) change no value's order of summation; each value sums
+    // its half's images, runs and lanes in one fixed order, then the halves in order.
     let group = co_blocks.div_ceil(2 * rayon::current_num_threads()).clamp(1, (65536 / (per_block * 16)).max(1));
     let groups = co_blocks.div_ceil(group);
-    let partial: Vec<Vec<f32>> = (0..groups)
+    let halves = items.clamp(1, 2);
+    let partial: Vec<Vec<f32>> = (0..groups * halves)
         .into_par_iter()
-        .map(|gr| {
+        .map(|t| {
+            let (gr, half) = (t / halves, t % halves);
             let cbs = gr * group..((gr + 1) * group).min(co_blocks);
+            let images = half * items / halves..(half + 1) * items / halves;
             let mut lanes = vec![0f32; cbs.len() * per_block * 16];
-            for (i, p0) in (0..items).flat_map(|i| (0..gplane).step_by(run).map(move |p0| (i, p0))) {
+            for (i, p0) in images.flat_map(|i| (0..gplane).step_by(run).map(move |p0| (i, p0))) {
                 let pixels = p0..(p0 + run).min(gplane);
                 for (cb, lanes) in cbs.clone().zip(lanes.chunks_mut(per_block * 16)) {
                     let co = cb * mb;
@@ -681,6 +663,16 @@ fn weight_gradient_on(
                 }
             }
             lanes
+        })
+        .collect();
+    let blocks: Vec<f32> = partial
+        .chunks(halves)
+        .flat_map(|halves| {
+            let mut lanes = halves[0].clone();
+            for other in &halves[1..] {
+                lanes.iter_mut().zip(other).for_each(|(a, b)| *a += b);
+            }
+            lanes
                 .chunks_exact(16)
                 .map(|lane| {
                     // A pairwise tree, which vectorises (a running sum is a 16-add
@@ -693,10 +685,9 @@ fn weight_gradient_on(
                     }
                     v[0]
                 })
-                .collect()
+                .collect::<Vec<f32>>()
         })
         .collect();
-    let blocks = partial.concat();
     // Blocks are [co block][ci block][mb][nb][k²]; the result is [cout][cin][k²].
     let mut out = vec![0f32; cout * cin * k2];
     for co in 0..cout {
@@ -864,7 +855,7 @@ impl Taps<'_> {
 /// value is one lane summed over images and pixels in order.
 #[cfg(target_arch = "x86_64")]
 mod by_channel {
-    use super::Isa;
+    use super::super::simd::Isa;
     use rayon::prelude::*;
 
     /// `src`: `items·cin` zero-padded planes (`(w + 2) × (h + 2)`); `grad`: `items·cout`

@@ -24,6 +24,12 @@ fn clamp_logit(l: f32) -> f32 {
 /// `r = (k − 1) / 2`, the region around the output. Returns three `h × w` planes, each a
 /// convex combination of its neighbourhood.
 pub fn apply(logits: &[f32], noisy: &[Vec<f32>; 3], k: usize, w: usize, h: usize) -> [Vec<f32>; 3] {
+    apply_on(simd::Isa::detect(), logits, noisy, k, w, h)
+}
+
+/// [`apply`] on the given instruction set (the vector paths agree with the scalar one to a
+/// few ulp: their exponential is a polynomial).
+fn apply_on(isa: simd::Isa, logits: &[f32], noisy: &[Vec<f32>; 3], k: usize, w: usize, h: usize) -> [Vec<f32>; 3] {
     let r = (k - 1) / 2;
     let pw = w + 2 * r;
     let plane = w * h;
@@ -34,11 +40,13 @@ pub fn apply(logits: &[f32], noisy: &[Vec<f32>; 3], k: usize, w: usize, h: usize
     o0.par_chunks_mut(w).zip(o1.par_chunks_mut(w)).zip(o2.par_chunks_mut(w)).enumerate().for_each(
         |(y, ((r0, r1), r2))| {
             #[cfg(target_arch = "x86_64")]
-            if simd::avx512() {
-                // SAFETY: AVX-512F is available (checked); the slices have the sizes
+            match isa {
+                // SAFETY: AVX-512F is available (detected); the slices have the sizes
                 // asserted above.
-                unsafe { simd::apply_row(logits, noisy, k, w, h, y, [r0, r1, r2]) };
-                return;
+                simd::Isa::Avx512 => return unsafe { simd::apply_row(logits, noisy, k, w, h, y, [r0, r1, r2]) },
+                // SAFETY: AVX2 and FMA are available (detected); sizes as above.
+                simd::Isa::Avx2 => return unsafe { simd::apply_row_avx2(logits, noisy, k, w, h, y, [r0, r1, r2]) },
+                simd::Isa::Scalar => {}
             }
             // Row-wise passes keep every access contiguous.
             let mut max = vec![f32::NEG_INFINITY; w];
@@ -165,15 +173,25 @@ mod tests {
     }
 
     #[test]
-    fn matches_the_naive_definition() {
-        let (k, w, h) = (5, 7, 4);
-        let logits = lcg(1, k * k * w * h, 8.0);
-        let noisy = [0, 1, 2].map(|c| lcg(10 + c, (w + 4) * (h + 4), 3.0));
-        let fast = apply(&logits, &noisy, k, w, h);
-        let slow = apply_naive(&logits, &noisy, k, w, h);
-        for c in 0..3 {
-            for i in 0..w * h {
-                assert!((fast[c][i] - slow[c][i]).abs() < 1e-5, "{c} {i}: {} vs {}", fast[c][i], slow[c][i]);
+    fn every_instruction_set_matches_the_naive_definition() {
+        // Widths around the 8- and 16-pixel vectors; hostile logits in the last case.
+        for (k, w, h) in [(5, 7, 4), (3, 19, 3), (5, 33, 2)] {
+            let mut logits = lcg(1, k * k * w * h, 8.0);
+            if w == 33 {
+                for (i, l) in logits.iter_mut().enumerate().step_by(7) {
+                    *l = [f32::NAN, 1e30, -1e30, f32::INFINITY, 90.0, -90.0][i % 6];
+                }
+            }
+            let noisy = [0, 1, 2].map(|c| lcg(10 + c, (w + k - 1) * (h + k - 1), 3.0));
+            let slow = apply_naive(&logits, &noisy, k, w, h);
+            for isa in [simd::Isa::Avx512, simd::Isa::Avx2, simd::Isa::Scalar].into_iter().filter(|i| i.available()) {
+                let fast = apply_on(isa, &logits, &noisy, k, w, h);
+                for c in 0..3 {
+                    for i in 0..w * h {
+                        let (a, b) = (fast[c][i], slow[c][i]);
+                        assert!((a - b).abs() < 1e-5, "{isa:?} {k}×{k} {w}×{h} channel {c} pixel {i}: {a} vs {b}");
+                    }
+                }
             }
         }
     }
