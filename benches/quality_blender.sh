@@ -8,13 +8,13 @@
 # Albedo/Normal (hdr, quality high) and kpcn MODEL; and the geometric means.
 #
 #   apt-get install blender; pip install pyoidn OpenEXR numpy
-#   benches/quality_blender.sh [MODEL] [WORK] [REF_SPP]
+#   benches/quality_blender.sh [MODEL] [WORK] [REF_SPP]     # MODEL: auto (default), default, spatial, FILE
 #
-# A measuring tool, never training data. Rendering takes most of the time: the references
-# (default 1024 spp) about 3-6 minutes each on 2 cores, once.
+# A measuring tool, never training data. Rendering takes most of the time (about 4 minutes
+# on 2 cores for all 12 frames, references at 1024 spp), once: frames are kept in WORK.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-model=${1:-default}
+model=${1:-auto}
 work=${2:-target/blender-bench}
 ref_spp=${3:-1024}
 mkdir -p "$work"

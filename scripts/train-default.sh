@@ -5,6 +5,10 @@
 # last checkpoint in WORK/run (`--resume`).
 #
 #   scripts/train-default.sh [WORK]        # WORK defaults to ./train-default
+#   KPCN_VARIANCES=spatial scripts/train-default.sh train-spatial
+#                                          # the same data and recipe on the spatial variance
+#                                          # estimates files without variances give
+#                                          # (models/spatial.safetensors); reuses WORK/data
 #
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
@@ -12,6 +16,7 @@ cd "$(dirname "$0")/.."
 work=${1:-train-default}
 steps=${KPCN_STEPS:-8000}
 phase2=${KPCN_PHASE2_STEPS:-500}
+variances=${KPCN_VARIANCES:-file}
 mkdir -p "$work"
 
 cargo build --release --locked --quiet
@@ -30,5 +35,5 @@ if [ -f "$work/run/checkpoint.safetensors" ]; then
 fi
 nice -n 19 "$kpcn" train --data "$work/data" -o "$work/run" --preset multiscale --clamp spread \
     --steps "$steps" --phase2-steps "$phase2" --batch 6 --patch 64 --lr 1e-3 --lr-phase2 1e-4 \
-    --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
+    --variances "$variances" --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
 echo "model: $work/run/model.safetensors (log: $work/run/log.csv)"

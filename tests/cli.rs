@@ -207,3 +207,43 @@ fn scenes_lists_eight_families_and_dataset_writes_a_manifest() {
         assert!(dir.path().join(cols[6]).is_file(), "{row}");
     }
 }
+
+/// `--model auto` (the default) runs `default` on a file with per-pixel variances and
+/// `spatial` on one with neither variances nor half buffers, exactly as naming it would.
+#[test]
+fn auto_picks_the_spatial_model_for_files_without_variances() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = native_frame(48, 32, 5, &[]);
+    let with = write(&full, dir.path(), "with.exr");
+    // The same means, without variances and half buffers.
+    let mut means = kpcn::io::FrameBuffers::new(48, 32);
+    for c in crate::util::native_channels() {
+        if !c.contains("Variance") && !c.split('.').next().is_some_and(|l| l.ends_with('A')) {
+            means.insert(&c, kpcn::io::SampleFormat::Float, full.channel(&c).unwrap().to_vec()).unwrap();
+        }
+    }
+    let without = write(&means, dir.path(), "without.exr");
+    let bits = |p: &Path| {
+        let fb = kpcn::io::FrameBuffers::read(p).unwrap();
+        ["R", "G", "B"]
+            .map(|c| fb.channel(&format!("denoised.{c}")).unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+    };
+    for (input, picked) in [(&with, "default"), (&without, "spatial")] {
+        let auto = dir.path().join("auto.exr");
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", auto.to_str().unwrap(), "-v"]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        assert!(text(&o.stdout).contains(&format!("--model auto: `{picked}`")), "{}", text(&o.stdout));
+        let named = dir.path().join("named.exr");
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", named.to_str().unwrap(), "-q", "--model", picked]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        assert_eq!(bits(&auto), bits(&named), "{}: auto is not `{picked}`", input.display());
+    }
+    // `spatial` is always fed spatial estimates: the file's own variances change nothing.
+    let outs = [&with, &without].map(|input| {
+        let out = dir.path().join(format!("spatial-{}", input.file_name().unwrap().to_string_lossy()));
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "-q", "--model", "spatial"]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        bits(&out)
+    });
+    assert_eq!(outs[0], outs[1]);
+}

@@ -22,6 +22,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             conv_size: 3,
             kernel_size: kernel,
             clamp: Default::default(),
+            variances: Default::default(),
         },
         3,
     )
@@ -229,34 +230,44 @@ fn progress_can_cancel() {
     assert_eq!(calls.get(), 3);
 }
 
-/// Golden image: a 48×32 crop of the Cycles example through the `small` preset (Xavier seed
-/// 0, fixed in code). Regenerate with `KPCN_BLESS=1 cargo test golden`; a mismatch writes
-/// `target/golden-actual.exr` beside the expected file's name for inspection.
+/// Golden images: a 48×32 crop of the Cycles example through every shipped model and the
+/// untrained `small` preset (Xavier seed 0, fixed in code), each against
+/// `tests/golden/spheres-48x32-<model>.exr`. Regenerate with `KPCN_BLESS=1 cargo test
+/// golden`; a mismatch writes `target/golden-<model>-actual.exr` and `-diff.exr`
+/// (|actual − expected|) for inspection.
 #[test]
-fn golden_small_preset_on_a_cycles_crop() {
+fn golden_images_of_every_shipped_model_on_a_cycles_crop() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
     let input = FrameBuffers::read(&dir.join("spheres-48x32-input.exr")).unwrap();
     let k = Mapping::for_frame(&input, None).extract(&input).unwrap();
-    let d = run(Model::resolve("small").unwrap(), &k, None, 2);
-    let mut out = FrameBuffers::new(d.width, d.height);
-    out.insert_rgb("denoised", SampleFormat::Float, d.color).unwrap();
-    let expected_path = dir.join("spheres-48x32-small.exr");
-    if std::env::var_os("KPCN_BLESS").is_some() {
-        out.write(&expected_path, &WriteOptions::default()).unwrap();
-        return;
-    }
-    let expected = FrameBuffers::read(&expected_path).expect("golden file (regenerate with KPCN_BLESS=1)");
-    let mut worst = 0f32;
-    for c in ["denoised.R", "denoised.G", "denoised.B"] {
-        for (a, b) in out.channel(c).unwrap().iter().zip(expected.channel(c).unwrap()) {
-            worst = worst.max((a - b).abs() / (1e-3 + b.abs()));
+    let mut failures = Vec::new();
+    for name in ["small", "default", "spatial", "small-flat"] {
+        let d = run(Model::resolve(name).unwrap(), &k, None, 2);
+        let mut out = FrameBuffers::new(d.width, d.height);
+        out.insert_rgb("denoised", SampleFormat::Float, d.color).unwrap();
+        let expected_path = dir.join(format!("spheres-48x32-{name}.exr"));
+        if std::env::var_os("KPCN_BLESS").is_some() {
+            out.write(&expected_path, &WriteOptions::default()).unwrap();
+            continue;
+        }
+        let expected = FrameBuffers::read(&expected_path).expect("golden file (regenerate with KPCN_BLESS=1)");
+        let mut worst = 0f32;
+        let mut diff = FrameBuffers::new(d.width, d.height);
+        for c in ["denoised.R", "denoised.G", "denoised.B"] {
+            let (a, b) = (out.channel(c).unwrap(), expected.channel(c).unwrap());
+            for (a, b) in a.iter().zip(b) {
+                worst = worst.max((a - b).abs() / (1e-3 + b.abs()));
+            }
+            diff.insert(c, SampleFormat::Float, a.iter().zip(b).map(|(a, b)| (a - b).abs()).collect()).unwrap();
+        }
+        if worst > 1e-4 {
+            let target = Path::new(env!("CARGO_MANIFEST_DIR")).join("target");
+            out.write(&target.join(format!("golden-{name}-actual.exr")), &WriteOptions::default()).unwrap();
+            diff.write(&target.join(format!("golden-{name}-diff.exr")), &WriteOptions::default()).unwrap();
+            failures.push(format!("{name}: worst relative error {worst} (target/golden-{name}-*.exr)"));
         }
     }
-    if worst > 1e-4 {
-        let actual = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/golden-actual.exr");
-        out.write(&actual, &WriteOptions::default()).unwrap();
-        panic!("golden mismatch: worst relative error {worst}; actual written to {}", actual.display());
-    }
+    assert!(failures.is_empty(), "golden mismatch:\n{}", failures.join("\n"));
 }
 
 fn kpcn(args: &[&str]) -> std::process::Output {

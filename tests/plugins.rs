@@ -136,7 +136,11 @@ fn cli_on_passes(dir: &Path) -> FrameBuffers {
     let passes = dir.join("passes.exr");
     fb.select(&keep).unwrap().write(&passes, &Default::default()).unwrap();
     let cli = dir.join("cli.exr");
-    run(Command::new(env!("CARGO_BIN_EXE_kpcn")).args(["denoise", "--separate", "-q", "-o"]).arg(&cli).arg(&passes));
+    // The C ABI's default model; `auto` would pick `spatial` for passes without variances.
+    run(Command::new(env!("CARGO_BIN_EXE_kpcn"))
+        .args(["denoise", "--model", "default", "--separate", "-q", "-o"])
+        .arg(&cli)
+        .arg(&passes));
     FrameBuffers::read(&cli).unwrap()
 }
 

@@ -58,6 +58,7 @@ fn tiny() -> Model {
             conv_size: 3,
             kernel_size: 5,
             clamp: Default::default(),
+            variances: Default::default(),
         },
         1,
     )
@@ -79,7 +80,7 @@ fn weights(m: &Model) -> Vec<u32> {
 fn training_lowers_the_loss_and_resumes_bit_exactly() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false).unwrap();
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
     assert_eq!((data.train.len(), data.validation.len()), (4, 2), "whole scenes are held out");
 
     // The loss on a fixed batch goes down.
@@ -184,9 +185,9 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
 fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
-    let fresh = Dataset::load(dir.path(), 3, true).unwrap();
+    let fresh = Dataset::load(dir.path(), 3, true, Default::default()).unwrap();
     assert_eq!(fresh.cached, 0);
-    let again = Dataset::load(dir.path(), 3, true).unwrap();
+    let again = Dataset::load(dir.path(), 3, true, Default::default()).unwrap();
     assert_eq!(again.cached, 6);
     for (a, b) in fresh.train.iter().chain(&fresh.validation).zip(again.train.iter().chain(&again.validation)) {
         assert_eq!((&a.scene, a.spp), (&b.scene, b.spp));
@@ -213,7 +214,7 @@ fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
     let bytes = std::fs::read(dir.path().join(&noisy)).unwrap();
     std::thread::sleep(std::time::Duration::from_millis(20));
     std::fs::write(dir.path().join(&noisy), bytes).unwrap();
-    let third = Dataset::load(dir.path(), 3, true).unwrap();
+    let third = Dataset::load(dir.path(), 3, true, Default::default()).unwrap();
     assert_eq!(third.cached, 4);
 }
 
@@ -221,7 +222,7 @@ fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
 fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false).unwrap();
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
     let ms = crate::util::tiny_multiscale(2);
     // 9 + 2 × 16 context pixels is not a multiple of 4.
     let e = Trainer::new(&ms, &data, TrainOptions { patch: 9, ..options(10) }).err().expect("refused").to_string();

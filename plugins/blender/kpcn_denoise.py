@@ -108,9 +108,11 @@ def denoise_file(source, target, layer, threads=0, model="", lib_path=""):
     options = _Options()
     lib.kpcn_options_init(ctypes.byref(options))
     options.threads = threads
-    if model:
-        attr = "model_path" if model.endswith(".safetensors") else "model_name"
-        setattr(options, attr, model.encode())
+    # Blender writes no variance passes: the shipped `spatial` model is trained on the
+    # spatial estimates kpcn makes for such files (what `kpcn denoise --model auto` picks).
+    model = model or "spatial"
+    attr = "model_path" if model.endswith(".safetensors") else "model_name"
+    setattr(options, attr, model.encode())
     handle = ctypes.c_void_p()
     _check(lib, lib.kpcn_denoiser_new(ctypes.byref(options), ctypes.byref(handle)))
     try:
@@ -139,7 +141,7 @@ class KpcnPreferences(bpy.types.AddonPreferences):
     bl_idname = __name__
     library: bpy.props.StringProperty(name="Library", subtype="FILE_PATH",
                                       description="libkpcn.so.0, or the folder holding it (empty: $KPCN_LIBRARY or the system's)")
-    model: bpy.props.StringProperty(name="Model", description="A model name or .safetensors file (empty: the embedded default)")
+    model: bpy.props.StringProperty(name="Model", description="A model name or .safetensors file (empty: `spatial`, trained for files without variance passes)")
     threads: bpy.props.IntProperty(name="Threads", min=0, default=0, description="0 = every core")
 
     def draw(self, context):

@@ -4,7 +4,7 @@ use super::Usage;
 use super::sequence::{Pattern, gaps, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
 use crate::io::atomic::{check_writable, same_file};
-use crate::io::layout::Layout;
+use crate::io::layout::{Layout, Mapping, Quantity, VarianceSource};
 use crate::io::{FrameReader, WriteOptions};
 use crate::model::Model;
 use anyhow::bail;
@@ -34,10 +34,13 @@ pub struct DenoiseArgs {
     /// are several).
     #[arg(long, value_name = "NAME|all")]
     pub view_layer: Option<String>,
-    /// A shipped model: `default` or `small-flat` (flat KPCN: slower, sometimes better); a
-    /// .safetensors file from `kpcn train`; or, with --allow-untrained, an untrained
-    /// architecture preset (`paper`, `small`, `multiscale`) for testing.
-    #[arg(long, default_value = "default", value_name = "MODEL")]
+    /// `auto` picks per file: `default` when the file has per-pixel variances or half
+    /// buffers, `spatial` when it has neither (Blender's own output), trained on the
+    /// spatial variance estimates such files give. Or a shipped model by name (`default`,
+    /// `spatial`, `small-flat`: flat KPCN, slower, sometimes better); a .safetensors file
+    /// from `kpcn train`; or, with --allow-untrained, an untrained architecture preset
+    /// (`paper`, `small`, `multiscale`) for testing.
+    #[arg(long, default_value = "auto", value_name = "MODEL")]
     pub model: String,
     /// Run an untrained preset (its images are useless: it only tests the pipeline).
     #[arg(long)]
@@ -174,7 +177,8 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             return Ok(());
         }
     }
-    let model = Model::resolve(&args.model)?;
+    let auto = args.model == "auto";
+    let model = Model::resolve(if auto { "default" } else { &args.model })?;
     if model.is_untrained() && !args.allow_untrained {
         return Err(Usage(format!(
             "--model {}: an untrained architecture preset ({}) gives useless images — use `default`, `small-flat` or a trained .safetensors file, or give --allow-untrained to test the pipeline with it",
@@ -208,14 +212,15 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             args.model, model.description
         );
     }
-    let denoiser = Denoiser::new(
-        model,
-        Options {
-            threads: super::threads(args.threads, args.quiet),
-            max_memory_mb: args.max_memory.max(16),
-            tile_size: None,
-        },
-    )?;
+    let options = Options {
+        threads: super::threads(args.threads, args.quiet),
+        max_memory_mb: args.max_memory.max(16),
+        tile_size: None,
+    };
+    let denoiser = Denoisers {
+        spatial: if auto { Some(Denoiser::new(Model::resolve("spatial")?, options.clone())?) } else { None },
+        chosen: Denoiser::new(model, options)?,
+    };
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(jobs.len() as u64 * 1000) };
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {percent:>3}% ETA {eta}")
@@ -271,8 +276,30 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The model given, or with `--model auto` the two it picks from.
+struct Denoisers {
+    chosen: Denoiser,
+    /// `spatial`, for files without variances (with `auto` only).
+    spatial: Option<Denoiser>,
+}
+
+impl Denoisers {
+    /// The denoiser for a file: with `auto`, `spatial` when the file has neither per-pixel
+    /// colour variances nor half buffers.
+    fn pick(&self, mapping: &Mapping) -> &Denoiser {
+        let estimated = matches!(
+            mapping.entry_for(Quantity::Color).variance,
+            VarianceSource::Spatial | VarianceSource::Unavailable
+        );
+        match &self.spatial {
+            Some(spatial) if estimated => spatial,
+            _ => &self.chosen,
+        }
+    }
+}
+
 fn denoise_file(
-    denoiser: &Denoiser,
+    denoiser: &Denoisers,
     args: &DenoiseArgs,
     input: &Path,
     output: &Path,
@@ -301,7 +328,7 @@ fn denoise_file(
 /// `output` already holds an earlier view layer's result.
 #[allow(clippy::too_many_arguments)]
 fn denoise_view_layer(
-    denoiser: &Denoiser,
+    denoisers: &Denoisers,
     args: &DenoiseArgs,
     input: &Path,
     output: &Path,
@@ -314,6 +341,11 @@ fn denoise_view_layer(
     let t = std::time::Instant::now();
     let job = FileJob::open_view_layer(input, args.layout.map(|l| l.0), view_layer)?;
     let mapping = job.mapping().clone();
+    let denoiser = denoisers.pick(&mapping);
+    if args.verbose && denoisers.spatial.is_some() {
+        let which = if std::ptr::eq(denoiser, &denoisers.chosen) { "default" } else { "spatial" };
+        bar.suspend(|| println!("{}: --model auto: `{which}`", input.display()));
+    }
     if let (Some(chosen), true) = (&mapping.view_layer, mapping.view_layers.len() > 1 && !args.quiet) {
         bar.suspend(|| {
             eprintln!(

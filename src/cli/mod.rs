@@ -46,8 +46,9 @@ pub enum Command {
     /// Denoise a layered EXR or an image sequence, adding a denoised layer to a copy of each
     /// input (every channel and all metadata kept; written atomically).
     ///
-    /// The embedded default is a KPCN trained on simulator scenes (`kpcn model info` says which);
-    /// `--model` picks another.
+    /// The embedded models are KPCNs trained on simulator scenes (`kpcn model info NAME`
+    /// describes them): by default `default` runs on files with variances and `spatial` on
+    /// files without (Blender's); `--model` picks one.
     #[command(
         after_help = "Examples:\n  kpcn denoise frame.exr -o frame.denoised.exr\n  kpcn denoise shot/render.####.exr -o out/render.####.exr --frames 1001-1100 --aovs\n  kpcn denoise render.%04d.exr -o den.%04d.exr -n"
     )]

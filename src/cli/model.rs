@@ -105,6 +105,11 @@ pub fn describe(m: &Model) {
             println!("  firefly clamp {clamp}");
         }
     }
+    let variances = match a.variances {
+        crate::model::Variances::File => "the file's own (spatial estimates where it has none)",
+        crate::model::Variances::Spatial => "3×3 spatial estimates, always (trained on them)",
+    };
+    println!("  variances     {variances}");
     println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
     println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);
     println!("  description   {}", m.description);

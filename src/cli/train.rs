@@ -3,7 +3,7 @@
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
-use crate::model::{Clamp, Model};
+use crate::model::{Clamp, Model, Variances};
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
 use crate::train::{curves, records};
@@ -38,6 +38,12 @@ pub struct TrainArgs {
     /// or the --init model's.
     #[arg(long, value_enum, value_name = "hard|spread")]
     pub clamp: Option<ClampArg>,
+    /// Variance features to train on: `file` (the dataset's own per-pixel variances) or
+    /// `spatial` (3×3 spatial estimates, what files without variances, such as Blender's,
+    /// give at inference). Recorded in the model, which is then always fed that kind.
+    /// Give it again with --resume.
+    #[arg(long, value_enum, default_value_t = VariancesArg::File, value_name = "file|spatial")]
+    pub variances: VariancesArg,
     /// Phase-1 steps: each branch alone, L1 in its transformed domain.
     #[arg(long, default_value_t = 1000, value_name = "N")]
     pub steps: u64,
@@ -111,6 +117,15 @@ fn plot(dir: &Path, bar: &ProgressBar) {
     }
 }
 
+/// `--variances` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum VariancesArg {
+    /// The dataset's own.
+    File,
+    /// 3×3 spatial estimates.
+    Spatial,
+}
+
 /// `--clamp` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ClampArg {
@@ -126,7 +141,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         bail!("--batch must be ≥ 1 and --patch ≥ 8");
     }
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
-    let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache)?;
+    let variances = match args.variances {
+        VariancesArg::File => Variances::File,
+        VariancesArg::Spatial => Variances::Spatial,
+    };
+    let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, variances)?;
     let opts = TrainOptions {
         phase1_steps: args.steps,
         phase2_steps: args.phase2_steps,
@@ -147,6 +166,14 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
         // Steps logged after the checkpoint by an interrupted run are redone: drop them.
         // Rewritten in the current format: a log from an older kpcn gains the newer columns.
+        if t.model.base.arch.variances != variances {
+            bail!(
+                "{}: trained on {:?} variances; resume with --variances {}",
+                checkpoint.display(),
+                t.model.base.arch.variances,
+                if variances == Variances::File { "spatial" } else { "file" }
+            );
+        }
         let mut rows = records::read_log(&std::fs::read_to_string(&log_path).unwrap_or_default());
         rows.retain(|r| r.step <= t.step);
         records::write_log(&log_path, &rows)?;
@@ -162,6 +189,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 ClampArg::Spread => Clamp::Spread,
             };
         }
+        model.arch.variances = variances;
         records::write_log(&log_path, &[])?;
         Trainer::new(&model, &data, opts.clone())?
     };

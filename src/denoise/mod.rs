@@ -7,7 +7,7 @@
 use crate::features::{Branch, EPSILON, Features, INPUT_CHANNELS, sanitize};
 use crate::io::layout::KpcnInputs;
 use crate::kernel;
-use crate::model::{Design, Kind, Model, ModelError};
+use crate::model::{Design, Kind, Model, ModelError, Variances};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 
@@ -137,6 +137,16 @@ impl Denoiser {
     /// Preprocesses `inputs` in this denoiser's threads; `max_depth` is the whole frame's
     /// largest finite depth when `inputs` is a band of it.
     pub fn features(&self, inputs: &KpcnInputs, max_depth: Option<f32>) -> Features {
+        // A model trained on spatial estimates gets them, whatever the file holds.
+        let estimated;
+        let inputs = if self.model.arch.variances == Variances::Spatial {
+            let mut i = inputs.clone();
+            i.estimate_variances_spatially();
+            estimated = i;
+            &estimated
+        } else {
+            inputs
+        };
         self.pool.install(|| match max_depth {
             Some(m) => Features::with_max_depth(inputs, m),
             None => Features::new(inputs),

@@ -584,7 +584,7 @@ fn weight_gradient_on(
     };
     #[cfg(target_arch = "x86_64")]
     if k == 3 && cout > 16 && isa != Isa::Scalar {
-        return by_channel::weight_gradient(isa, &src, grad, items, w, h, cin, cout);
+        return by_channel::weight_gradient(isa, &src, grad, by_channel::Dims { items, w, h, cin, cout });
     }
     let g: Cow<[f32]> = if r == 0 {
         Cow::Borrowed(grad)
@@ -858,19 +858,19 @@ mod by_channel {
     use super::super::simd::Isa;
     use rayon::prelude::*;
 
+    /// A batch's sizes: `items` images of `w × h`, `cin` input and `cout` output channels.
+    pub(super) struct Dims {
+        pub items: usize,
+        pub w: usize,
+        pub h: usize,
+        pub cin: usize,
+        pub cout: usize,
+    }
+
     /// `src`: `items·cin` zero-padded planes (`(w + 2) × (h + 2)`); `grad`: `items·cout`
     /// planes of `w × h`. Returns `[cout][cin][3][3]`.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn weight_gradient(
-        isa: Isa,
-        src: &[f32],
-        grad: &[f32],
-        items: usize,
-        w: usize,
-        h: usize,
-        cin: usize,
-        cout: usize,
-    ) -> Vec<f32> {
+    pub(super) fn weight_gradient(isa: Isa, src: &[f32], grad: &[f32], dims: Dims) -> Vec<f32> {
+        let Dims { items, w, h, cin, cout } = dims;
         let lanes = if isa == Isa::Avx512 { 16 } else { 8 };
         let (plane, pw, splane, cp) = (w * h, w + 2, (w + 2) * (h + 2), cout.next_multiple_of(lanes));
         // The channels-last gradient `[item][pixel][cp]`, 64-byte aligned so that no load

@@ -20,9 +20,12 @@ pub const FORMAT_VERSION: &str = "1";
 static DEFAULT_MODEL: &[u8] = include_bytes!("../../models/default.safetensors");
 /// The flat KPCN shipped beside it (`small-flat`): slower, better on some renders.
 static SMALL_FLAT_MODEL: &[u8] = include_bytes!("../../models/small.safetensors");
+/// The default's architecture and recipe trained on spatial variance estimates
+/// (`spatial`): for files without variances, such as Blender's own output.
+static SPATIAL_MODEL: &[u8] = include_bytes!("../../models/spatial.safetensors");
 
 /// Names of the trained models shipped inside the library, for `Model::resolve`.
-pub const SHIPPED: [&str; 2] = ["default", "small-flat"];
+pub const SHIPPED: [&str; 3] = ["default", "spatial", "small-flat"];
 
 /// Kernel prediction or direct prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,6 +65,21 @@ pub struct Architecture {
     pub kernel_size: usize,
     /// How the multi-scale colour pyramid treats isolated fireflies.
     pub clamp: Clamp,
+    /// Which variance estimates the network was trained on, and is fed.
+    pub variances: Variances,
+}
+
+/// The variance features a model was trained on (`kpcn:variances`): inference feeds it
+/// the same kind, whatever the file holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Variances {
+    /// The file's own (per-pixel sample variances or half buffers); estimated spatially
+    /// only where the file has none.
+    #[default]
+    File,
+    /// The 3×3 spatial estimate for every input, always: what a file without variances
+    /// (Blender's own output) gives, so the network sees at inference what it learned on.
+    Spatial,
 }
 
 /// The firefly clamp of a multi-scale network's colour pyramid (`kpcn:clamp`).
@@ -96,7 +114,7 @@ pub enum ModelError {
     },
     /// Unknown preset name.
     #[error(
-        "unknown model `{0}` — use a shipped model (`default`, `small-flat`), a .safetensors file, or an untrained preset (`paper`, `small`, `multiscale`, for testing)"
+        "unknown model `{0}` — use a shipped model (`default`, `spatial`, `small-flat`), a .safetensors file, or an untrained preset (`paper`, `small`, `multiscale`, for testing)"
     )]
     UnknownPreset(String),
     /// A tensor computation failed.
@@ -115,6 +133,7 @@ impl Architecture {
             conv_size: 5,
             kernel_size: 21,
             clamp: Default::default(),
+            variances: Default::default(),
         }
     }
 
@@ -128,6 +147,7 @@ impl Architecture {
             conv_size: 3,
             kernel_size: 11,
             clamp: Default::default(),
+            variances: Default::default(),
         }
     }
 
@@ -143,6 +163,7 @@ impl Architecture {
             kernel_size: 5,
             // The shipped default's: energy-preserving (BENCHMARKS.md).
             clamp: Clamp::Spread,
+            variances: Variances::File,
         }
     }
 
@@ -264,6 +285,7 @@ impl Architecture {
             ("kpcn:conv_size", self.conv_size.to_string()),
             ("kpcn:kernel_size", self.kernel_size.to_string()),
             ("kpcn:clamp", (if self.clamp == Clamp::Spread { "spread" } else { "hard" }).to_string()),
+            ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -307,6 +329,12 @@ impl Architecture {
                 None | Some("hard") => Clamp::Hard,
                 Some("spread") => Clamp::Spread,
                 Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
+            },
+            // Files from before the choice were trained on the files' variances.
+            variances: match m.get("kpcn:variances").map(String::as_str) {
+                None | Some("file") => Variances::File,
+                Some("spatial") => Variances::Spatial,
+                Some(other) => return Err(err(format!("unknown variance features `{other}`"))),
             },
         };
         a.validate(origin)?;
@@ -383,12 +411,13 @@ impl Model {
         Self::from_bytes(DEFAULT_MODEL, "embedded default model")
     }
 
-    /// A shipped model (`default`, `small-flat`), a preset name (`paper`, `small`,
+    /// A shipped model (`default`, `spatial`, `small-flat`), a preset name (`paper`, `small`,
     /// `multiscale`: untrained, Xavier seed 0; see [`Model::is_untrained`]) or a file path.
     pub fn resolve(name: &str) -> Result<Model, ModelError> {
         match name {
             "default" => Self::embedded_default(),
             "small-flat" => Self::from_bytes(SMALL_FLAT_MODEL, "shipped model small-flat"),
+            "spatial" => Self::from_bytes(SPATIAL_MODEL, "shipped model spatial"),
             "paper" => Self::xavier(Architecture::paper(Kind::Kpcn), 0),
             "small" => Self::xavier(Architecture::small(Kind::Kpcn), 0),
             "multiscale" => Self::xavier(Architecture::multiscale(), 0),
@@ -505,6 +534,7 @@ mod tests {
             conv_size: 3,
             kernel_size: 1,
             clamp: Default::default(),
+            variances: Default::default(),
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -549,6 +579,7 @@ mod tests {
                 conv_size: 3,
                 kernel_size: 3,
                 clamp: Default::default(),
+                variances: Default::default(),
             },
             7,
         )

@@ -4,7 +4,7 @@
 use crate::features::{Branch, EPSILON, Features, log_specular, sanitize};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
-use crate::model::{Architecture, ModelError};
+use crate::model::{Architecture, ModelError, Variances};
 use crate::rng::SplitMix64;
 use candle_core::Tensor;
 use std::path::{Path, PathBuf};
@@ -231,8 +231,10 @@ impl Frame {
 impl Dataset {
     /// Loads the frames of a `kpcn dataset` folder; every `holdout_every`-th scene (in name
     /// order) is held out whole for validation. With `cache`, preprocessed frames are read
-    /// from and written to `DIR/cache/` (see [`super::cache`]).
-    pub fn load(dir: &Path, holdout_every: usize, cache: bool) -> Result<Dataset, DataError> {
+    /// from and written to `DIR/cache/` (see [`super::cache`]). `variances` picks the noisy
+    /// frames' variance features: the files' own, or the spatial estimates a file without
+    /// variances gets at inference.
+    pub fn load(dir: &Path, holdout_every: usize, cache: bool, variances: Variances) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.csv");
         let manifest =
             super::records::read_manifest(&path).map_err(|e| DataError::Manifest { path: path.clone(), msg: e.msg })?;
@@ -254,7 +256,8 @@ impl Dataset {
         for (scene, spp, noisy, reference) in rows {
             let key = cache.then(|| super::cache::key(&noisy, &reference)).flatten();
             let stem = noisy.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-            let cache_path = dir.join("cache").join(format!("{stem}.safetensors"));
+            let suffix = if variances == Variances::Spatial { "-spatial" } else { "" };
+            let cache_path = dir.join("cache").join(format!("{stem}{suffix}.safetensors"));
             let cached = key.as_ref().and_then(|k| super::cache::load(&cache_path, k));
             let frame = match cached {
                 Some(f) => {
@@ -266,7 +269,11 @@ impl Dataset {
                         reference_cache = Some((reference.clone(), inputs(&reference)?));
                     }
                     let r = &reference_cache.as_ref().expect("just set").1;
-                    let f = Frame::new(scene.clone(), spp, &inputs(&noisy)?, r);
+                    let mut n = inputs(&noisy)?;
+                    if variances == Variances::Spatial {
+                        n.estimate_variances_spatially();
+                    }
+                    let f = Frame::new(scene.clone(), spp, &n, r);
                     if let Some(k) = &key {
                         // A read-only dataset still trains, only without the speed-up.
                         let _ = super::cache::store(&cache_path, k, &f);

@@ -110,6 +110,7 @@ pub fn tiny_multiscale(seed: u64) -> kpcn::model::Model {
         conv_size: 3,
         kernel_size: 3,
         clamp: Default::default(),
+        variances: Default::default(),
     };
     Model::xavier(arch, seed).unwrap()
 }

@@ -34,3 +34,17 @@ pub struct KpcnInputs {
     /// Variance of the mean of `depth`.
     pub depth_variance: Vec<f32>,
 }
+
+impl KpcnInputs {
+    /// Replaces every variance by the 3×3 spatial estimate of its mean
+    /// ([`super::spatial_variance`]), exactly what a file without variances gives.
+    pub fn estimate_variances_spatially(&mut self) {
+        let (w, h) = (self.width, self.height);
+        self.color_variance = super::spatial_variance(&self.color, w, h);
+        self.diffuse_variance = super::spatial_variance(&self.diffuse, w, h);
+        self.specular_variance = super::spatial_variance(&self.specular, w, h);
+        self.albedo_variance = super::spatial_variance(&self.albedo, w, h);
+        self.normal_variance = super::spatial_variance(&self.normal, w, h);
+        self.depth_variance = super::spatial_variance(std::slice::from_ref(&self.depth), w, h);
+    }
+}
