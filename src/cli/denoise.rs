@@ -4,7 +4,7 @@ use super::Usage;
 use super::sequence::{Pattern, gaps, parse_frames};
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
 use crate::io::atomic::{check_writable, same_file};
-use crate::io::layout::{Layout, Mapping, Quantity, VarianceSource};
+use crate::io::layout::{Layout, Mapping};
 use crate::io::{FrameReader, WriteOptions};
 use crate::model::Model;
 use anyhow::bail;
@@ -287,12 +287,8 @@ impl Denoisers {
     /// The denoiser for a file: with `auto`, `spatial` when the file has neither per-pixel
     /// colour variances nor half buffers.
     fn pick(&self, mapping: &Mapping) -> &Denoiser {
-        let estimated = matches!(
-            mapping.entry_for(Quantity::Color).variance,
-            VarianceSource::Spatial | VarianceSource::Unavailable
-        );
         match &self.spatial {
-            Some(spatial) if estimated => spatial,
+            Some(spatial) if !mapping.colour_variance_in_file() => spatial,
             _ => &self.chosen,
         }
     }

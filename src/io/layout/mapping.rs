@@ -238,6 +238,13 @@ impl Mapping {
             .collect()
     }
 
+    /// Whether the colour's variance comes from the file itself (per-pixel variances or half
+    /// buffers), rather than only from the 3×3 spatial estimate, as for Blender's own
+    /// files: what `kpcn denoise --model auto` picks `default` or `spatial` by.
+    pub fn colour_variance_in_file(&self) -> bool {
+        !matches!(self.entry_for(Quantity::Color).variance, VarianceSource::Spatial | VarianceSource::Unavailable)
+    }
+
     /// Every file channel [`extract`](Mapping::extract) reads, each once, in mapping order:
     /// what a streaming reader needs to load.
     pub fn channels(&self) -> Vec<String> {
@@ -345,6 +352,10 @@ mod tests {
         assert!(m.missing_required().is_empty());
         assert_eq!(m.entry_for(Quantity::Visibility).mean_status(), MeanStatus::Missing);
         assert_eq!(m.entry_for(Quantity::Depth).variance_status(), VarianceStatus::Present);
+        assert!(m.colour_variance_in_file());
+        // Without `colorVariance`, the colour's variance is the spatial estimate.
+        let names: Vec<&str> = names.iter().map(String::as_str).filter(|n| *n != "colorVariance.Z").collect();
+        assert!(!Mapping::new(names, Some(Layout::Native)).colour_variance_in_file());
     }
 
     #[test]
