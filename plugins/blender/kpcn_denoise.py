@@ -108,9 +108,9 @@ def denoise_file(source, target, layer, threads=0, model="", lib_path=""):
     options = _Options()
     lib.kpcn_options_init(ctypes.byref(options))
     options.threads = threads
-    # Blender writes no variance passes: the shipped `spatial` model is trained on the
-    # spatial estimates kpcn makes for such files (what `kpcn denoise --model auto` picks).
-    model = model or "spatial"
+    # `auto`, as `kpcn denoise` does: Blender writes no variance passes, so this picks the
+    # shipped `spatial` model, trained on the spatial estimates kpcn makes for such files.
+    model = model or "auto"
     attr = "model_path" if model.endswith(".safetensors") else "model_name"
     setattr(options, attr, model.encode())
     handle = ctypes.c_void_p()
@@ -141,7 +141,7 @@ class KpcnPreferences(bpy.types.AddonPreferences):
     bl_idname = __name__
     library: bpy.props.StringProperty(name="Library", subtype="FILE_PATH",
                                       description="libkpcn.so.0, or the folder holding it (empty: $KPCN_LIBRARY or the system's)")
-    model: bpy.props.StringProperty(name="Model", description="A model name or .safetensors file (empty: `spatial`, trained for files without variance passes)")
+    model: bpy.props.StringProperty(name="Model", description="A model name or .safetensors file (empty: auto, which picks `spatial`, trained for files without variance passes)")
     threads: bpy.props.IntProperty(name="Threads", min=0, default=0, description="0 = every core")
 
     def draw(self, context):

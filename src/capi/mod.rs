@@ -52,7 +52,11 @@ pub struct KpcnOptions {
     pub threads: u32,
     /// Working-memory budget in MB for one tile's network; 0 = the default (512).
     pub max_memory_mb: u32,
-    /// A model by name (`"default"`, the embedded one), or NULL.
+    /// A model by name, or NULL for `"default"`: `"default"`, `"spatial"` (trained on the
+    /// spatial variance estimates of frames without variances), `"small-flat"`, or
+    /// `"auto"`, which picks per frame as `kpcn denoise` does: `default` when the frame
+    /// has a colour variance (a `colorVariance` image; in a file, per-pixel variances or
+    /// half buffers), `spatial` when it has none.
     pub model_name: *const c_char,
     /// A model file (`.safetensors` written by `kpcn train`), or NULL.
     pub model_path: *const c_char,
@@ -105,6 +109,8 @@ pub struct KpcnDenoiser {
 
 struct State {
     denoiser: Denoiser,
+    /// `spatial`, for frames without a colour variance, with model `"auto"` only.
+    spatial: Option<Denoiser>,
     inputs: Vec<(String, HostImage)>,
     outputs: Vec<(String, HostImage)>,
     progress: (KpcnProgressFn, *mut c_void),
@@ -263,6 +269,7 @@ unsafe fn read_options<T: Default>(p: *const T, what: &str) -> Result<T, Failure
     Ok(unsafe { p.read_unaligned() })
 }
 
+/// The model the options name; with `"auto"`, `default` (and the caller adds `spatial`).
 fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
     let name = optional_text(o.model_name, "options.model_name")?;
     let path = optional_text(o.model_path, "options.model_path")?;
@@ -277,7 +284,10 @@ fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
     } else if let Some(p) = path {
         Model::load(Path::new(p))?
     } else {
-        Model::resolve(name.unwrap_or("default"))?
+        Model::resolve(match name {
+            None | Some("auto") => "default",
+            Some(n) => n,
+        })?
     };
     if model.is_untrained() && !o.allow_untrained {
         return Err(Failure::invalid(format!(
@@ -312,9 +322,12 @@ pub unsafe extern "C" fn kpcn_denoiser_new(options: *const KpcnOptions, out: *mu
             },
             tile_size: None,
         };
+        let auto = optional_text(o.model_name, "options.model_name")? == Some("auto");
+        let spatial = if auto { Some(Denoiser::new(Model::resolve("spatial")?, opts.clone())?) } else { None };
         let denoiser = Denoiser::new(model, opts)?;
         let state = State {
             denoiser,
+            spatial,
             inputs: Vec::new(),
             outputs: Vec::new(),
             progress: (None, std::ptr::null_mut()),
@@ -462,6 +475,14 @@ impl State {
         }
     }
 
+    /// The denoiser for a frame: `spatial` under `"auto"` when it has no colour variance.
+    fn pick(&self, colour_variance: bool) -> &Denoiser {
+        match &self.spatial {
+            Some(spatial) if !colour_variance => spatial,
+            _ => &self.denoiser,
+        }
+    }
+
     fn execute(&mut self) -> Result<(), Failure> {
         let Some((_, first)) = self.inputs.first() else {
             return Err(Failure::state("no input images are set"));
@@ -484,7 +505,8 @@ impl State {
             images.insert(name, image.read(wanted))?;
         }
         let inputs = images.inputs()?;
-        let result = self.denoiser.denoise(&inputs, &self.progress())?;
+        let denoiser = self.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
+        let result = denoiser.denoise(&inputs, &self.progress())?;
         for (name, image) in &self.outputs {
             let planes = match name.as_str() {
                 "outputDiffuse" => &result.diffuse,
@@ -550,7 +572,8 @@ pub unsafe extern "C" fn kpcn_denoise_file(
             band_rows: None,
         };
         let job = FileJob::open(Path::new(input), layout)?;
-        job.run(&s.denoiser, Path::new(output), &opts, &s.progress())?;
+        let denoiser = s.pick(job.mapping().colour_variance_in_file());
+        job.run(denoiser, Path::new(output), &opts, &s.progress())?;
         Ok(())
     })
 }

@@ -66,7 +66,7 @@ typedef struct {
     float *out, *out_diffuse4, *out_specular;
 } Frame;
 
-static const char *variances[6] = {"colorVariance", "diffuseVariance", "specularVariance",
+static const char *variance_names[6] = {"colorVariance", "diffuseVariance", "specularVariance",
                                    "albedoVariance", "normalVariance", "depthVariance"};
 
 static Frame load_frame(void) {
@@ -88,7 +88,7 @@ static Frame load_frame(void) {
     f.albedo16 = load("albedo.f16", n * 3 * 2);
     for (i = 0; i < 6; i++) {
         char name[64];
-        snprintf(name, sizeof name, "%s.f32", variances[i]);
+        snprintf(name, sizeof name, "%s.f32", variance_names[i]);
         f.variance[i] = load(name, n * sizeof(float));
     }
     f.out = calloc(n * 3, sizeof(float));
@@ -112,7 +112,7 @@ static void free_frame(Frame *f) {
     free(f->out_specular);
 }
 
-static KpcnStatus set_frame(KpcnDenoiser *d, Frame *f) {
+static KpcnStatus set_images(KpcnDenoiser *d, Frame *f, bool variances) {
     ptrdiff_t row4 = (ptrdiff_t)(W * 4 * sizeof(float));
     KpcnStatus s = KPCN_OK;
     int i;
@@ -124,7 +124,7 @@ static KpcnStatus set_frame(KpcnDenoiser *d, Frame *f) {
     SET("albedo", f->albedo16, KPCN_FORMAT_HALF3, W, H, 0, 0);
     SET("normal", f->normal, KPCN_FORMAT_FLOAT3, W, H, 0, 0);
     SET("depth", f->depth, KPCN_FORMAT_FLOAT, W, H, 0, 0);
-    for (i = 0; i < 6; i++) SET(variances[i], f->variance[i], KPCN_FORMAT_FLOAT, W, H, 0, 0);
+    for (i = 0; variances && i < 6; i++) SET(variance_names[i], f->variance[i], KPCN_FORMAT_FLOAT, W, H, 0, 0);
     SET("output", f->out, KPCN_FORMAT_FLOAT3, W, H, 0, 0);
     SET("outputDiffuse", f->out_diffuse4, KPCN_FORMAT_FLOAT4, W, H, 16,
                         (ptrdiff_t)((W * 4 + 4) * sizeof(float)));
@@ -132,6 +132,8 @@ static KpcnStatus set_frame(KpcnDenoiser *d, Frame *f) {
 #undef SET
     return s;
 }
+
+static KpcnStatus set_frame(KpcnDenoiser *d, Frame *f) { return set_images(d, f, true); }
 
 static KpcnDenoiser *new_denoiser(unsigned threads) {
     KpcnOptions o;
@@ -351,6 +353,28 @@ int main(int argc, char **argv) {
                   "thread %d's specular differs", i);
             free_frame(&jobs[i].frame);
         }
+    }
+    /* Model "auto": with a colorVariance image it is `default` (the beauty above); without
+       variances, `spatial`, exactly as naming it. */
+    {
+        const char *models[2] = {"auto", "spatial"};
+        Frame g[3];
+        int i;
+        for (i = 0; i < 3; i++) {
+            KpcnOptions o;
+            KpcnDenoiser *a = NULL;
+            EXPECT(kpcn_options_init(&o), KPCN_OK);
+            o.threads = 2;
+            o.model_name = models[i == 2];
+            EXPECT(kpcn_denoiser_new(&o, &a), KPCN_OK);
+            g[i] = load_frame();
+            EXPECT(set_images(a, &g[i], i == 0), KPCN_OK);
+            EXPECT(kpcn_execute(a), KPCN_OK);
+            EXPECT(kpcn_denoiser_free(a), KPCN_OK);
+        }
+        CHECK(memcmp(g[0].out, beauty, n * 3 * sizeof(float)) == 0, "auto with variances is not `default`");
+        CHECK(memcmp(g[1].out, g[2].out, n * 3 * sizeof(float)) == 0, "auto without variances is not `spatial`");
+        for (i = 0; i < 3; i++) free_frame(&g[i]);
     }
     free_frame(&f);
     free(beauty);
