@@ -65,7 +65,7 @@ fn oiio_imagebuf_helper_matches_the_cli() {
         .arg(&exe)
         .args(flags.split_whitespace())
         .arg(format!("-Wl,-rpath,{}", lib.display())));
-    let cli = cli_on_passes(dir.path());
+    let cli = cli_on_passes(dir.path(), "default");
     let out = dir.path().join("out.exr");
     let text = run(Command::new(&exe).arg(dir.path().join("passes.exr")).arg(&out));
     assert!(text.contains("ok"), "{text}");
@@ -129,16 +129,16 @@ const PASSES: [(&str, &[&str]); 5] = [
 ];
 
 /// Writes the example's [`PASSES`] to `dir/passes.exr` and returns `kpcn denoise
-/// --separate` of it: variances estimated, specular derived, as for a host without them.
-fn cli_on_passes(dir: &Path) -> FrameBuffers {
+/// --separate --model MODEL` of it: variances estimated, specular derived, as for a host
+/// without them (`auto` picks `spatial` there).
+fn cli_on_passes(dir: &Path, model: &str) -> FrameBuffers {
     let fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
     let keep: Vec<&str> = PASSES.iter().flat_map(|(_, names)| names.iter().copied()).collect();
     let passes = dir.join("passes.exr");
     fb.select(&keep).unwrap().write(&passes, &Default::default()).unwrap();
     let cli = dir.join("cli.exr");
-    // The C ABI's default model; `auto` would pick `spatial` for passes without variances.
     run(Command::new(env!("CARGO_BIN_EXE_kpcn"))
-        .args(["denoise", "--model", "default", "--separate", "-q", "-o"])
+        .args(["denoise", "--model", model, "--separate", "-q", "-o"])
         .arg(&cli)
         .arg(&passes));
     FrameBuffers::read(&cli).unwrap()
@@ -183,7 +183,7 @@ fn openfx_plugin_renders_in_a_hostsupport_host() {
         let planes: Vec<&[f32]> = names.iter().map(|n| fb.channel(n).unwrap()).collect();
         write_ofx_rgba(&images.join(format!("{clip}.f32")), &planes, w, h);
     }
-    let cli = cli_on_passes(dir.path());
+    let cli = cli_on_passes(dir.path(), "auto");
 
     let ofx_host = |extra: &[&str]| {
         let out = Command::new(host.join("ofx_host"))

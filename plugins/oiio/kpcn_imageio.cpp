@@ -4,7 +4,8 @@
 // B; float; the input's data window and metadata): `oiiotool shot.exr.kpcn -o den.exr` is a
 // denoise step inside an oiiotool pipeline. Read-only; a thin shell over the C ABI
 // (kpcn_denoise_file). Configuration hints (`ImageInput::open`'s config, or oiiotool
-// `--iconfig kpcn:model FILE`): `kpcn:model` (a name or a .safetensors file), `kpcn:threads`.
+// `--iconfig kpcn:model FILE`): `kpcn:model` (a name or a .safetensors file; default `auto`,
+// as `kpcn denoise`), `kpcn:threads`.
 #include <kpcn.h>
 
 #include <OpenImageIO/filesystem.h>
@@ -73,8 +74,8 @@ bool KpcnInput::open(const std::string& name, ImageSpec& newspec, const ImageSpe
     const std::string model = config.get_string_attribute("kpcn:model");
     if (model.size() > 12 && model.compare(model.size() - 12, 12, ".safetensors") == 0)
         options.model_path = model.c_str();
-    else if (!model.empty())
-        options.model_name = model.c_str();
+    else
+        options.model_name = model.empty() ? "auto" : model.c_str();  // auto: as `kpcn denoise`
     options.threads = static_cast<uint32_t>(std::max(0, config.get_int_attribute("kpcn:threads", 0)));
     KpcnDenoiser* raw = nullptr;
     if (kpcn_denoiser_new(&options, &raw) != KPCN_OK) return fail(std::string("kpcn: ") + kpcn_last_error());

@@ -176,6 +176,9 @@ OfxStatus render(OfxImageEffectHandle instance, OfxPropertySetHandle in_args) {
 
     KpcnOptions o;
     kpcn_options_init(&o);
+    // As `kpcn denoise`: the host hands no variance clips, so this is the `spatial` model,
+    // trained on the spatial estimates kpcn makes for them.
+    o.model_name = "auto";
     o.threads = static_cast<uint32_t>(int_param(instance, kParamThreads, time));
     o.max_memory_mb = static_cast<uint32_t>(int_param(instance, kParamMemory, time));
     KpcnDenoiser* raw = nullptr;
