@@ -241,8 +241,7 @@ impl FileJob {
                         None => totals.push((name, range, r)),
                     }
                 }
-                let f = denoiser.features(&inputs, max_depth);
-                drop(inputs);
+                let f = denoiser.features(std::borrow::Cow::Owned(inputs), max_depth);
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
                 let d = denoiser
                     .denoise_rows(&f, a - c0..b - c0, &step)

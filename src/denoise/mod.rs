@@ -10,6 +10,7 @@ use crate::kernel;
 use crate::model::{Design, Kind, Model, ModelError, Variances};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
+use std::borrow::Cow;
 
 mod file;
 
@@ -131,25 +132,24 @@ impl Denoiser {
         if inputs.width == 0 || inputs.height == 0 {
             return Err(DenoiseError::Empty);
         }
-        self.denoise_features(&self.features(inputs, None), progress)
+        self.denoise_features(&self.features(Cow::Borrowed(inputs), None), progress)
     }
 
     /// Preprocesses `inputs` in this denoiser's threads; `max_depth` is the whole frame's
-    /// largest finite depth when `inputs` is a band of it.
-    pub fn features(&self, inputs: &KpcnInputs, max_depth: Option<f32>) -> Features {
+    /// largest finite depth when `inputs` is a band of it. Owned inputs are changed in
+    /// place where the model needs it; borrowed ones are copied only then.
+    pub fn features(&self, inputs: Cow<'_, KpcnInputs>, max_depth: Option<f32>) -> Features {
         // A model trained on spatial estimates gets them, whatever the file holds.
-        let estimated;
         let inputs = if self.model.arch.variances == Variances::Spatial {
-            let mut i = inputs.clone();
+            let mut i = inputs.into_owned();
             i.estimate_variances_spatially();
-            estimated = i;
-            &estimated
+            Cow::Owned(i)
         } else {
             inputs
         };
         self.pool.install(|| match max_depth {
-            Some(m) => Features::with_max_depth(inputs, m),
-            None => Features::new(inputs),
+            Some(m) => Features::with_max_depth(&inputs, m),
+            None => Features::new(&inputs),
         })
     }
 
