@@ -1,7 +1,7 @@
 //! The denoiser's contract: finite on hostile input, convex kernels, tiled == untiled,
 //! thread-count independence, a golden image, and the `kpcn denoise` command.
 
-use crate::util::{Rng, cycles_dev, native_frame, tiny_multiscale, write};
+use crate::util::{Rng, cycles_dev, native_frame, tiny_multiscale, tiny_multiscale_levels, write};
 use kpcn::denoise::{Denoised, Denoiser, FileJob, FileOptions, Options};
 use kpcn::features::{EPSILON, Features, reflect};
 use kpcn::io::layout::{KpcnInputs, Mapping};
@@ -23,6 +23,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             kernel_size: kernel,
             clamp: Default::default(),
             variances: Default::default(),
+            specular: Default::default(),
         },
         3,
     )
@@ -118,14 +119,15 @@ proptest! {
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
         w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
-        spread in any::<bool>()
+        spread in any::<bool>(), ladder in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
-        // the receptive radius as halo) reproduce the frame exactly; hostile inputs stay
-        // finite. Both firefly clamps.
+        // the receptive radius as halo, cut at the frame's border radius) reproduce the
+        // frame exactly; hostile inputs stay finite. Both firefly clamps; 2 levels, and the
+        // ladder's 5, whose regions are cut at the frame's edges.
         let k = frame(w, h, seed, hostile);
         let model = || {
-            let mut m = tiny_ms();
+            let mut m = if ladder { tiny_multiscale_levels(4, 5) } else { tiny_ms() };
             if spread {
                 m.arch.clamp = kpcn::model::Clamp::Spread;
             }
@@ -145,10 +147,53 @@ fn multiscale_output_lies_within_the_receptive_range() {
     for p in &mut k.albedo {
         p.fill(0.5);
     }
-    let model = tiny_ms();
-    let r = model.arch.feature_radius();
-    let d = run(model, &k, Some(8), 2);
-    assert_diffuse_within_neighbourhood(&d, &k, r);
+    for model in [tiny_ms(), tiny_multiscale_levels(4, 5)] {
+        let r = model.arch.feature_radius();
+        let d = run(model, &k, Some(8), 2);
+        assert_diffuse_within_neighbourhood(&d, &k, r);
+    }
+}
+
+#[test]
+fn linear_specular_kernels_keep_specular_inside_its_range_and_bright_frames_bright() {
+    // The ladder filters linear specular radiance: every denoised specular value lies in
+    // the range of the noisy specular around it (no exp of an average of logs), so a
+    // frame of sparse bright specular samples keeps far more of its mean than in log.
+    let (w, h) = (40, 36);
+    let mut k = frame(w, h, 9, false);
+    let mut rng = Rng(3);
+    for c in 0..3 {
+        for v in &mut k.specular[c] {
+            *v = if rng.uniform_f32() < 0.05 { 40.0 } else { 0.01 };
+        }
+    }
+    let (mut log, mut linear) = (tiny_multiscale_levels(4, 5), tiny_multiscale_levels(4, 5));
+    for (m, domain) in [(&mut log, kpcn::model::Specular::Log), (&mut linear, kpcn::model::Specular::Linear)] {
+        // As the ladder: the firefly clamp spreads what it removes.
+        m.arch.specular = domain;
+        m.arch.clamp = kpcn::model::Clamp::Spread;
+    }
+    let r = linear.arch.feature_radius();
+    let (d_log, d_lin) = (run(log, &k, None, 2), run(linear, &k, None, 2));
+    assert!(all_finite(&d_lin));
+    for c in 0..3 {
+        let s = &k.specular[c];
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let nb = (-(r as isize)..=r as isize)
+                    .flat_map(|dy| (-(r as isize)..=r as isize).map(move |dx| (dx, dy)))
+                    .map(|(dx, dy)| s[reflect(y + dy, h) * w + reflect(x + dx, w)]);
+                let (lo, hi) = nb.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+                let v = d_lin.specular[c][y as usize * w + x as usize];
+                assert!(v >= lo * (1.0 - 1e-5) && v <= hi * (1.0 + 1e-5), "{v} outside [{lo}, {hi}] at {x},{y}");
+            }
+        }
+    }
+    let mean = |p: &[Vec<f32>; 3]| p.iter().flatten().map(|&v| v as f64).sum::<f64>() / (3 * w * h) as f64;
+    let noisy = mean(&k.specular);
+    // Untrained kernels are near-uniform averages: in log space they lose most of the energy.
+    assert!(mean(&d_log.specular) < 0.5 * noisy, "log {} of {noisy}", mean(&d_log.specular));
+    assert!(mean(&d_lin.specular) > 0.8 * noisy, "linear {} of {noisy}", mean(&d_lin.specular));
 }
 
 /// With albedo 0.5 everywhere, every denoised d̂ lies within the range of the noisy d̃ in
@@ -446,7 +491,7 @@ fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
     fb.insert("depth.Z", SampleFormat::Float, depth).unwrap();
     let input = write(&fb, dir.path(), "in.exr");
     let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
-    for model in [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms()] {
+    for model in [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms(), tiny_multiscale_levels(4, 5)] {
         let whole = run(model.clone(), &k, Some(16), 2);
         // Multi-scale bands are rounded up to its pooling grid (4 rows).
         for band in [Some(1), Some(4), Some(7), None] {

@@ -45,6 +45,8 @@ fn options(steps: u64) -> TrainOptions {
         checkpoint_every: 100,
         validate_every: 100,
         ops: Default::default(),
+        // The schedule is a function of the step: resuming must follow it exactly.
+        cosine: true,
     }
 }
 
@@ -59,6 +61,7 @@ fn tiny() -> Model {
             kernel_size: 5,
             clamp: Default::default(),
             variances: Default::default(),
+            specular: Default::default(),
         },
         1,
     )
@@ -246,4 +249,24 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     let after = loss(&t);
     assert!(after < 0.9 * before, "loss {before} → {after}");
     assert!(t.validate().unwrap().unwrap().median.is_finite());
+
+    // Linear specular kernels train through both phases too (the loss stays in log).
+    let mut linear = crate::util::tiny_multiscale(2);
+    linear.arch.specular = kpcn::model::Specular::Linear;
+    let spec = batch(&frames, &origins, 8, &linear.arch, Branch::Specular).unwrap();
+    let log_spec = batch(&frames, &origins, 8, &ms.arch, Branch::Specular).unwrap();
+    let (a, b) = (spec.noisy.flatten_all().unwrap(), log_spec.noisy.flatten_all().unwrap());
+    let back = (b.exp().unwrap() - 1.0).unwrap();
+    let gap = (a - back).unwrap().abs().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap();
+    assert!(gap < 1e-3, "the linear batch is exp(s̃) − 1: {gap}");
+    let mut t = Trainer::new(&linear, &data, TrainOptions { patch: 8, lr: 1e-2, ..options(6) }).unwrap();
+    while !t.finished() {
+        let row = t.train_step().unwrap();
+        assert!(row.loss_specular.is_finite() || row.loss_combined.is_finite(), "{row:?}");
+    }
+    let m = t.model.snapshot("linear").unwrap();
+    assert_eq!(
+        kpcn::model::Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.specular,
+        linear.arch.specular
+    );
 }

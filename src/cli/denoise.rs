@@ -397,10 +397,11 @@ fn denoise_view_layer(
         }
     }
     if args.verbose {
-        let tile = denoiser.tile_size(w, band);
+        let tiles = denoiser.tiles(w, 0..band.min(h), band.min(h));
+        let tile = tiles.first().map_or("none".to_string(), |t| format!("{}x{}", t.w, t.h));
         bar.suspend(|| {
             println!(
-                "{} -> {} ({w}x{h}, layout {}, bands of {band} rows, tiles {tile}px, {:.2} s)",
+                "{} -> {} ({w}x{h}, layout {}, bands of {band} rows, tiles of up to {tile} px, {:.2} s)",
                 input.display(),
                 output.display(),
                 Layout::name(mapping.layout),

@@ -1,6 +1,6 @@
 //! `kpcn model`: inspect model files and create initial (untrained) ones.
 
-use crate::model::{Architecture, Design, Kind, Model};
+use crate::model::{Architecture, Design, Kind, Model, Quality};
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -49,6 +49,13 @@ pub enum Preset {
     /// U-Net with 3 pooling levels (16…64 channels), 5×5 kernels at 3 scales, blended
     /// (KPCN only; 93 kFLOP per pixel against `small`'s 319 k).
     Multiscale,
+    /// The quality ladder's `fast` rung: U-Net with 5 pooling levels (8…48 channels),
+    /// 5×5 kernels at 5 scales, 188 px receptive radius.
+    Fast,
+    /// The ladder's `balanced` rung: 5 levels, 16…96 channels.
+    Balanced,
+    /// The ladder's `high` rung: 5 levels, 24…144 channels.
+    High,
 }
 
 impl Preset {
@@ -62,7 +69,12 @@ impl Preset {
             Preset::Paper => Architecture::paper(kind),
             Preset::Small => Architecture::small(kind),
             Preset::Multiscale if kind == Kind::Kpcn => Architecture::multiscale(),
-            Preset::Multiscale => anyhow::bail!("the multiscale preset predicts kernels only: drop --kind dpcn"),
+            Preset::Fast if kind == Kind::Kpcn => Architecture::ladder(Quality::Fast),
+            Preset::Balanced if kind == Kind::Kpcn => Architecture::ladder(Quality::Balanced),
+            Preset::High if kind == Kind::Kpcn => Architecture::ladder(Quality::High),
+            Preset::Multiscale | Preset::Fast | Preset::Balanced | Preset::High => {
+                anyhow::bail!("multi-scale presets predict kernels only: drop --kind dpcn")
+            }
         })
     }
 }
@@ -103,6 +115,11 @@ pub fn describe(m: &Model) {
                 crate::model::Clamp::Spread => "spread (the excess shared over the 3×3 neighbourhood)",
             };
             println!("  firefly clamp {clamp}");
+            let specular = match a.specular {
+                crate::model::Specular::Log => "log radiance ln(1 + s), output exp(ŝ) − 1 (biased dark)",
+                crate::model::Specular::Linear => "linear radiance (energy-preserving)",
+            };
+            println!("  specular      kernels filter {specular}");
         }
     }
     let variances = match a.variances {

@@ -62,6 +62,11 @@ pub struct TrainArgs {
     /// Adam learning rate, phase 2.
     #[arg(long, default_value_t = 1e-5)]
     pub lr_phase2: f64,
+    /// Learning-rate schedule within each phase: `constant`, or `cosine` decay from
+    /// --lr (--lr-phase2) down to 5 % of it by the phase's last step. Give it again with
+    /// --resume.
+    #[arg(long, value_enum, default_value_t = Schedule::Constant)]
+    pub schedule: Schedule,
     /// Seed of initialisation and patch sampling: a run is reproducible from it.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -117,6 +122,15 @@ fn plot(dir: &Path, bar: &ProgressBar) {
     }
 }
 
+/// `--schedule` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Schedule {
+    /// The same rate throughout each phase.
+    Constant,
+    /// Cosine decay to 5 % within each phase.
+    Cosine,
+}
+
 /// `--variances` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum VariancesArg {
@@ -158,6 +172,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         checkpoint_every: args.checkpoint_every.max(1),
         validate_every: args.validate_every.max(1),
         ops: if args.stock_candle { Ops::StockCandle } else { Ops::Kpcn },
+        cosine: args.schedule == Schedule::Cosine,
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -264,7 +279,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     }
     let a = trainer.model.base.arch;
     let description = format!(
-        "trained by kpcn train: {:?} {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{}, seed {}, {} patches; data {} ({} frames, {} held out)",
+        "trained by kpcn train: {:?} {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{} {:?}, seed {}, {} patches; data {} ({} frames, {} held out)",
         a.design,
         a.kind,
         a.layers,
@@ -279,6 +294,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         args.patch,
         args.lr,
         args.lr_phase2,
+        args.schedule,
         args.seed,
         if opts.importance { "importance" } else { "uniform" },
         args.data.display(),

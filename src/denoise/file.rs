@@ -10,7 +10,6 @@ use super::{DenoiseError, Denoised, Denoiser, Progress};
 use crate::features;
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
-use crate::tile;
 use std::path::{Path, PathBuf};
 
 /// Working floats per pixel of a band: every channel of a layered EXR (≈40), the
@@ -202,7 +201,10 @@ impl FileJob {
         let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
 
         let halo = denoiser.halo();
-        let tiles_in = |a: usize, b: usize| tile::plan(w, b - a, denoiser.tile_size(w, b - a)).len();
+        let tiles_in = |a: usize, b: usize| {
+            let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
+            denoiser.tiles(w, a - c0..b - c0, c1 - c0).len()
+        };
         let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();

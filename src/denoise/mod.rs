@@ -1,13 +1,14 @@
 //! The public pipeline: `Denoiser::new(model, options)` and `denoise(&inputs, progress)`.
 //!
 //! frame → features → per tile: network (+ kernels) per branch → recomposition
-//! `(albedo + ε) ⊙ d̂ + exp(ŝ) − 1`. Safe to share between threads (`&self`); the work runs
-//! in the denoiser's own rayon pool, so a host application's pool is left alone.
+//! `(albedo + ε) ⊙ d̂ + ŝ` (`exp(ŝ) − 1` for log-specular models). Safe to share between
+//! threads (`&self`); the work runs in the denoiser's own rayon pool, so a host
+//! application's pool is left alone.
 
 use crate::features::{Branch, EPSILON, Features, INPUT_CHANNELS, sanitize};
 use crate::io::layout::KpcnInputs;
 use crate::kernel;
-use crate::model::{Design, Kind, Model, ModelError, Variances};
+use crate::model::{Design, Kind, Model, ModelError, Specular, Variances};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 use std::borrow::Cow;
@@ -15,9 +16,6 @@ use std::borrow::Cow;
 mod file;
 
 pub use file::{FileError, FileJob, FileOptions, FileReport};
-
-/// ŝ is clamped below this before `exp` so the specular output stays finite.
-const MAX_LOG_SPECULAR: f32 = 80.0;
 
 /// How to run.
 #[derive(Debug, Clone)]
@@ -79,7 +77,7 @@ pub struct Denoised {
     pub color: [Vec<f32>; 3],
     /// Denoised diffuse, `(albedo + ε) ⊙ d̂`.
     pub diffuse: [Vec<f32>; 3],
-    /// Denoised specular, `exp(ŝ) − 1`.
+    /// Denoised specular radiance.
     pub specular: [Vec<f32>; 3],
 }
 
@@ -115,15 +113,33 @@ impl Denoiser {
         &self.model
     }
 
-    /// The tile side used for a `width`×`height` frame.
-    pub fn tile_size(&self, width: usize, height: usize) -> usize {
+    /// How far a tile's region reaches beyond it (the network's context), for
+    /// [`tile::size_for_regions`] and the multi-scale regions.
+    pub fn reach(&self) -> tile::Reach {
         let arch = &self.model.arch;
-        self.options
-            .tile_size
-            .unwrap_or_else(|| {
-                tile::size_for_budget(|t| arch.tile_bytes(t), self.options.max_memory_mb << 20, width, height)
-            })
-            .next_multiple_of(arch.alignment())
+        let radius = arch.feature_radius().max(arch.kernel_radius());
+        let border = if arch.design == Design::MultiScale { arch.border_radius() } else { radius };
+        tile::Reach { radius, border, align: arch.alignment() }
+    }
+
+    /// The tiles of rows `rows` of a `width`×`total_rows` frame (or band with context
+    /// rows): `Options::tile_size` squares when given, else the sizes of least work within
+    /// `max_memory_mb` ([`tile::size_for_regions`]). Positions are relative to `rows.start`.
+    pub fn tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<tile::Tile> {
+        let arch = &self.model.arch;
+        let h = rows.end.saturating_sub(rows.start);
+        let (tw, th) = match self.options.tile_size {
+            Some(t) => (t.next_multiple_of(arch.alignment()), t.next_multiple_of(arch.alignment())),
+            None => tile::size_for_regions(
+                tile::Axis::whole(width),
+                tile::Axis { start: rows.start, len: h, total: total_rows },
+                &self.reach(),
+                16usize.max(arch.alignment()),
+                |rw, rh, tw, th| arch.region_bytes(rw, rh, tw, th),
+                self.options.max_memory_mb << 20,
+            ),
+        };
+        tile::plan(width, h, tw, th)
     }
 
     /// Denoises one frame. `progress` is called after every tile, on the calling thread;
@@ -178,7 +194,7 @@ impl Denoiser {
         }
         // The tile loop runs on the caller's thread, so `progress` does too (a C host's
         // callback may touch its UI); each tile's work runs in the pool.
-        let tiles = tile::plan(w, h, self.tile_size(w, h));
+        let tiles = self.tiles(w, rows.start..rows.start + h, f.height);
         let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
         let mut s_hat = d_hat.clone();
         for (i, t) in tiles.iter().enumerate() {
@@ -198,7 +214,7 @@ impl Denoiser {
             }
         }
         let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
-        Ok(recompose(&albedo, &d_hat, &s_hat, w, h))
+        Ok(recompose(&albedo, &d_hat, &s_hat, w, h, self.model.arch.specular))
     }
 
     /// Context rows (or columns) a pixel's result depends on beyond the pixel itself:
@@ -241,15 +257,19 @@ impl Denoiser {
 
 impl Denoiser {
     /// [`Denoiser::branch`] of a multi-scale network: the tile plus the receptive radius,
-    /// extended right and down to the pooling grid, evaluated whole; its inner pixels kept.
+    /// but at most [`Architecture::border_radius`] beyond the frame's edges, extended right
+    /// and down to the pooling grid, evaluated whole; the tile's pixels kept. Each end of
+    /// the region depends only on the tile's position against the frame, never on the tile
+    /// size, so tiles give the whole frame's result.
     fn branch_multiscale(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
         let arch = &self.model.arch;
-        let r = arch.feature_radius();
-        let align = arch.alignment();
-        let (rw, rh) = ((t.w + 2 * r).next_multiple_of(align), (t.h + 2 * r).next_multiple_of(align));
-        let (x0, y0) = (t.x as isize - r as isize, t.y as isize - r as isize);
+        let reach = self.reach();
+        let ((x0, rw, ox), (y0, rh, oy)) = (reach.region(t.x, t.w, f.width), reach.region(t.y, t.h, f.height));
         let input = f.branch_input(b, x0, y0, rw, rh);
-        let noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y0, rw, rh);
+        let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y0, rw, rh);
+        if b == Branch::Specular && arch.specular == Specular::Linear {
+            noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
+        }
         let [diffuse, specular] = self.pyramid.as_ref().expect("built in new for a multi-scale model");
         let weights = match b {
             Branch::Diffuse => diffuse,
@@ -258,21 +278,27 @@ impl Denoiser {
         let out = crate::model::pyramid::forward(arch, weights, input, noisy, rw, rh);
         Ok(out.map(|plane| {
             let mut v = Vec::with_capacity(t.w * t.h);
-            for y in r..r + t.h {
-                v.extend_from_slice(&plane[y * rw + r..][..t.w]);
+            for y in oy..oy + t.h {
+                v.extend_from_slice(&plane[y * rw + ox..][..t.w]);
             }
             v
         }))
     }
 }
 
-/// `(albedo + ε) ⊙ d̂` and `exp(ŝ) − 1`, and their sum, all finite.
-fn recompose(albedo: &[Vec<f32>; 3], d_hat: &[Vec<f32>; 3], s_hat: &[Vec<f32>; 3], w: usize, h: usize) -> Denoised {
+/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), and
+/// their sum, all finite.
+fn recompose(
+    albedo: &[Vec<f32>; 3],
+    d_hat: &[Vec<f32>; 3],
+    s_hat: &[Vec<f32>; 3],
+    w: usize,
+    h: usize,
+    domain: Specular,
+) -> Denoised {
     let diffuse: [Vec<f32>; 3] =
         std::array::from_fn(|c| d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d)).collect());
-    let specular: [Vec<f32>; 3] = std::array::from_fn(|c| {
-        s_hat[c].iter().map(|&s| sanitize(sanitize(s).min(MAX_LOG_SPECULAR).exp_m1())).collect()
-    });
+    let specular: [Vec<f32>; 3] = std::array::from_fn(|c| s_hat[c].iter().map(|&s| domain.radiance(s)).collect());
     let color = std::array::from_fn(|c| diffuse[c].iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
     Denoised { width: w, height: h, color, diffuse, specular }
 }

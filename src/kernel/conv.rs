@@ -113,6 +113,21 @@ fn pad_into(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: 
 /// after): the padded input of output rows `y0..y1`.
 #[allow(clippy::too_many_arguments)]
 fn pad_rows(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: usize, y0: usize, y1: usize) {
+    pad_rows_with(buf, c, w, h, r, y0, y1, |ch, y, dst| dst.copy_from_slice(&input[(ch * h + y) * w..][..w]));
+}
+
+/// [`pad_rows`] of planes that `row(channel, y, dst)` writes, `w` values at a time.
+#[allow(clippy::too_many_arguments)]
+fn pad_rows_with(
+    buf: &mut Vec<f32>,
+    c: usize,
+    w: usize,
+    h: usize,
+    r: usize,
+    y0: usize,
+    y1: usize,
+    row_of: impl Fn(usize, usize, &mut [f32]),
+) {
     let (pw, rows) = (w + 2 * r, y1 - y0 + 2 * r);
     // Every value is written below, so a reused buffer of the right length needs no
     // clearing. The last plane is followed by 2r zeros, read (times dropped columns) by
@@ -124,7 +139,7 @@ fn pad_rows(buf: &mut Vec<f32>, input: &[f32], c: usize, w: usize, h: usize, r: 
             match (y0 + j).checked_sub(r).filter(|&y| y < h) {
                 Some(y) => {
                     row[..r].fill(0.0);
-                    row[r..r + w].copy_from_slice(&input[(ch * h + y) * w..][..w]);
+                    row_of(ch, y, &mut row[r..r + w]);
                     row[r + w..].fill(0.0);
                 }
                 None => row.fill(0.0),
@@ -159,6 +174,43 @@ impl RowsPtr {
 pub fn conv(input: &Planes, layer: &ConvLayer, relu: bool) -> Planes {
     assert_eq!(input.c, layer.cin, "a {}-channel layer given {} channels", layer.cin, input.c);
     Planes::from_vec(layer.cout, input.w, input.h, conv_batch(&input.data, 1, input.w, input.h, layer, relu))
+}
+
+/// [`conv`] of `up_nearest(coarse).concat(skip)` (a U-Net decoder's input) without
+/// building it: each task upsamples and stacks just the rows it reads. The same sums as
+/// [`conv`] of the built planes, bit for bit.
+pub fn conv_up_concat(coarse: &Planes, skip: &Planes, layer: &ConvLayer, relu: bool) -> Planes {
+    let (w, h, cc) = (skip.w, skip.h, coarse.c);
+    assert_eq!((coarse.w * 2, coarse.h * 2), (w, h), "a half-size coarse input");
+    assert_eq!(cc + skip.c, layer.cin, "a {}-channel layer given {} channels", layer.cin, cc + skip.c);
+    if layer.cout * w * h == 0 {
+        return Planes::from_vec(layer.cout, w, h, Vec::new());
+    }
+    let r = (layer.k - 1) / 2;
+    let mut out = super::buffers::with_capacity(layer.cout * w * h);
+    let (isa, pw, band) = (Isa::detect(), w + 2 * r, band_rows(w));
+    let ptr = RowsPtr(out.as_mut_ptr());
+    let row_of = |ch: usize, y: usize, dst: &mut [f32]| {
+        if ch < cc {
+            let src = &coarse.data[(ch * coarse.h + y / 2) * coarse.w..][..coarse.w];
+            for (pair, &v) in dst.chunks_mut(2).zip(src) {
+                pair.fill(v);
+            }
+        } else {
+            dst.copy_from_slice(&skip.data[((ch - cc) * h + y) * w..][..w]);
+        }
+    };
+    (0..h.div_ceil(band)).into_par_iter().for_each_init(<(Vec<f32>, Vec<f32>)>::default, |(buf, scratch), t| {
+        let (y0, y1) = (t * band, (t * band + band).min(h));
+        pad_rows_with(buf, layer.cin, w, h, r, y0, y1, row_of);
+        let job = Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa };
+        // SAFETY: rows y0..y1 of every output plane are written by this task only, inside
+        // the buffer's capacity; `out` outlives the loop.
+        unsafe { job.rows(y0..y1, ptr.get(), scratch) }
+    });
+    // SAFETY: every row of every channel was written above.
+    unsafe { out.set_len(layer.cout * w * h) };
+    Planes::from_vec(layer.cout, w, h, out)
 }
 
 /// [`conv`] of `items` consecutive images of `cin` planes of `w × h` each: their outputs,
@@ -1061,6 +1113,25 @@ mod tests {
             for (i, (a, b)) in ours.data.iter().zip(&theirs).enumerate() {
                 assert!((a - b.max(0.0)).abs() < 1e-5, "{cin}→{cout} k{k} {w}×{h} at {i}: {a} vs {b}");
             }
+        }
+    }
+
+    #[test]
+    fn the_fused_decoder_input_gives_the_built_inputs_bits() {
+        // Narrow (flat path) and wide planes, several bands, 3×3 and 1×1.
+        for (cc, cs, cout, k, w, h) in [(6, 4, 5, 3, 12, 10), (16, 8, 12, 3, 64, 40), (5, 3, 7, 1, 20, 6)] {
+            let coarse = Planes::from_vec(cc, w / 2, h / 2, SplitMix64(4).centred(cc * w * h / 4));
+            let skip = Planes::from_vec(cs, w, h, SplitMix64(5).centred(cs * w * h));
+            let cin = cc + cs;
+            let layer =
+                ConvLayer::new(&SplitMix64(6).centred(cout * cin * k * k), &SplitMix64(7).centred(cout), cin, k);
+            let built = conv(&coarse.up_nearest().concat(&skip), &layer, true);
+            let fused = conv_up_concat(&coarse, &skip, &layer, true);
+            assert_eq!((fused.c, fused.w, fused.h), (cout, w, h));
+            assert!(
+                built.data.iter().zip(&fused.data).all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{cc}+{cs} k{k} {w}×{h}"
+            );
         }
     }
 

@@ -67,6 +67,85 @@ pub struct Architecture {
     pub clamp: Clamp,
     /// Which variance estimates the network was trained on, and is fed.
     pub variances: Variances,
+    /// What the specular branch's kernels filter.
+    pub specular: Specular,
+}
+
+/// The values the specular branch's kernels filter (`kpcn:specular`). The network always
+/// sees log features, `s̃ = ln(1 + s)`, and its phase-1 loss is always taken on `s̃`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Specular {
+    /// `s̃` itself, as in Bako et al. 2017; the output is `exp(ŝ) − 1`. Averaging in log
+    /// space is biased dark (Jensen): a 5×5 box filter of `s̃` keeps 35–48 % of a sparse
+    /// specular frame's energy (firefly-0000, BENCHMARKS.md), which training can only
+    /// partly undo.
+    #[default]
+    Log,
+    /// Linear radiance `s = exp(s̃) − 1`: convex kernels of an unbiased estimate keep its
+    /// energy, and the output is `ŝ` itself.
+    Linear,
+}
+
+impl Specular {
+    /// The value a kernel filters, from a pixel's `s̃`.
+    pub fn kernel_input(self, s_tilde: f32) -> f32 {
+        match self {
+            Specular::Log => s_tilde,
+            Specular::Linear => s_tilde.exp_m1(),
+        }
+    }
+
+    /// Specular radiance from a filtered value `ŝ`: finite and at least 0.
+    pub fn radiance(self, s_hat: f32) -> f32 {
+        use crate::features::sanitize;
+        match self {
+            // ln(f32::MAX) ≈ 88.7: beyond 80 `exp` is no longer a radiance.
+            Specular::Log => sanitize(sanitize(s_hat).min(80.0).exp_m1()),
+            Specular::Linear => sanitize(s_hat).max(0.0),
+        }
+    }
+
+    /// [`Specular::radiance`] of a batch, differentiable.
+    pub fn radiance_tensor(self, s_hat: &Tensor) -> Result<Tensor, ModelError> {
+        Ok(match self {
+            Specular::Log => (s_hat.clamp(-80f32, 80f32)?.exp()? - 1.0)?,
+            Specular::Linear => s_hat.relu()?,
+        })
+    }
+
+    /// A filtered batch in the log domain of the phase-1 loss (`ln(1 + ŝ)` for linear).
+    pub fn log_tensor(self, s_hat: &Tensor) -> Result<Tensor, ModelError> {
+        Ok(match self {
+            Specular::Log => s_hat.clone(),
+            Specular::Linear => (s_hat.relu()? + 1.0)?.log()?,
+        })
+    }
+}
+
+/// The rungs of the model ladder, like OIDN's quality modes: the same network at three
+/// widths ([`Architecture::ladder`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Quality {
+    /// About half the balanced rung's time.
+    Fast,
+    /// The default trade-off.
+    Balanced,
+    /// Best quality, about twice the time.
+    High,
+}
+
+impl Quality {
+    /// Every rung, fastest first.
+    pub const ALL: [Quality; 3] = [Quality::Fast, Quality::Balanced, Quality::High];
+
+    /// The rung's name (`fast`, `balanced`, `high`): also its shipped model's.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Fast => "fast",
+            Quality::Balanced => "balanced",
+            Quality::High => "high",
+        }
+    }
 }
 
 /// The variance features a model was trained on (`kpcn:variances`): inference feeds it
@@ -134,6 +213,7 @@ impl Architecture {
             kernel_size: 21,
             clamp: Default::default(),
             variances: Default::default(),
+            specular: Default::default(),
         }
     }
 
@@ -148,6 +228,7 @@ impl Architecture {
             kernel_size: 11,
             clamp: Default::default(),
             variances: Default::default(),
+            specular: Default::default(),
         }
     }
 
@@ -164,6 +245,25 @@ impl Architecture {
             // The shipped default's: energy-preserving (BENCHMARKS.md).
             clamp: Clamp::Spread,
             variances: Variances::File,
+            specular: Specular::Log,
+        }
+    }
+
+    /// A rung of the quality ladder (`--quality`): a multi-scale KPCN with 5 pooling
+    /// levels, so 5×5 kernels reach ¹⁄₁₆ resolution and the receptive radius is 188 px
+    /// (OIDN's U-Net: ≈174), with full-resolution widths 8 (`fast`), 16 (`balanced`) or
+    /// 24 (`high`), growing by that much per level; the spreading firefly clamp, and
+    /// specular kernels on linear radiance.
+    pub fn ladder(quality: Quality) -> Self {
+        Architecture {
+            layers: 5,
+            channels: match quality {
+                Quality::Fast => 8,
+                Quality::Balanced => 16,
+                Quality::High => 24,
+            },
+            specular: Specular::Linear,
+            ..Self::multiscale()
         }
     }
 
@@ -195,6 +295,20 @@ impl Architecture {
         }
     }
 
+    /// Context each side that a multi-scale region gets beyond the frame's edges (mirrored
+    /// features). Networks that reach at most 48 px mirror their whole radius. Wider ones
+    /// (the ladder's, 192 px) mirror only the real context a training patch gets around
+    /// it ([`Architecture::train_margins`]), rounded up to the pooling grid: beyond that,
+    /// zero padding is what the network learned, and a wider mirror costs time (at 720p a
+    /// 192-px mirror would double the pixels evaluated) without telling it anything new.
+    pub fn border_radius(&self) -> usize {
+        let r = self.feature_radius();
+        match self.design {
+            Design::MultiScale if r > 48 => r.min(self.train_margins().0.next_multiple_of(self.alignment())),
+            _ => r,
+        }
+    }
+
     /// Tiles and bands must start at multiples of this (the pyramid's pooling grid is the
     /// frame's, so a tile sees the same pyramid as the whole frame).
     pub fn alignment(&self) -> usize {
@@ -214,18 +328,25 @@ impl Architecture {
         }
     }
 
-    /// Estimated peak bytes to evaluate one branch on a `t`×`t` tile: the input with its
-    /// halo, the convolution's unfolded input (im2col), two activations, the logits and
-    /// the noisy colour region (multi-scale: [`pyramid::bytes_per_pixel`] of the region).
+    /// Estimated peak bytes to evaluate one branch on a `t`×`t` tile with its full halo.
     pub fn tile_bytes(&self, t: usize) -> usize {
-        let p = (t + 2 * self.feature_radius()).pow(2);
+        let p = t + 2 * self.feature_radius();
+        self.region_bytes(p, p, t, t)
+    }
+
+    /// Estimated peak bytes to evaluate one branch on a `tw`×`th` tile whose region (the
+    /// tile with its context) is `rw`×`rh`: the input region, the convolution's unfolded
+    /// input (im2col), two activations, the logits and the noisy colour region
+    /// (multi-scale: [`pyramid::bytes_per_pixel`] of the region).
+    pub fn region_bytes(&self, rw: usize, rh: usize, tw: usize, th: usize) -> usize {
+        let p = rw * rh;
         if self.design == Design::MultiScale {
             return p * pyramid::bytes_per_pixel(self);
         }
         let widest = self.channels.max(INPUT_CHANNELS);
         let im2col = widest * self.conv_size * self.conv_size * p;
-        let logits = self.outputs() * t * t;
-        let noisy = 3 * (t + 2 * self.kernel_radius()).pow(2);
+        let logits = self.outputs() * tw * th;
+        let noisy = 3 * (tw + 2 * self.kernel_radius()) * (th + 2 * self.kernel_radius());
         4 * (INPUT_CHANNELS * p + im2col + 2 * widest * p + 2 * logits + noisy)
     }
 
@@ -267,6 +388,9 @@ impl Architecture {
         if self.design == Design::MultiScale && (self.kind != Kind::Kpcn || self.layers > 6) {
             return bad(format!("a multi-scale network is KPCN with 1–6 levels, not {self:?}"));
         }
+        if self.specular == Specular::Linear && self.design != Design::MultiScale {
+            return bad(format!("linear specular kernels are for multi-scale networks, not {self:?}"));
+        }
         Ok(())
     }
 
@@ -286,6 +410,7 @@ impl Architecture {
             ("kpcn:kernel_size", self.kernel_size.to_string()),
             ("kpcn:clamp", (if self.clamp == Clamp::Spread { "spread" } else { "hard" }).to_string()),
             ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
+            ("kpcn:specular", (if self.specular == Specular::Linear { "linear" } else { "log" }).to_string()),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -335,6 +460,12 @@ impl Architecture {
                 None | Some("file") => Variances::File,
                 Some("spatial") => Variances::Spatial,
                 Some(other) => return Err(err(format!("unknown variance features `{other}`"))),
+            },
+            // Files from before the choice filter log specular.
+            specular: match m.get("kpcn:specular").map(String::as_str) {
+                None | Some("log") => Specular::Log,
+                Some("linear") => Specular::Linear,
+                Some(other) => return Err(err(format!("unknown specular domain `{other}`"))),
             },
         };
         a.validate(origin)?;
@@ -513,14 +644,25 @@ mod tests {
 
     #[test]
     fn budgets_pick_smaller_tiles_for_bigger_networks() {
-        use crate::tile::size_for_budget;
+        use crate::tile::{Axis, Reach, size_for_regions};
         let budget = 256 << 20;
+        let side = |a: Architecture, budget: usize, w: usize, h: usize| {
+            let r = a.feature_radius().max(a.kernel_radius());
+            let reach = Reach { radius: r, border: r, align: 1 };
+            size_for_regions(
+                Axis::whole(w),
+                Axis::whole(h),
+                &reach,
+                16,
+                |rw, rh, tw, th| a.region_bytes(rw, rh, tw, th),
+                budget,
+            )
+        };
         let (paper, small) = (Architecture::paper(Kind::Kpcn), Architecture::small(Kind::Kpcn));
-        let tp = size_for_budget(|t| paper.tile_bytes(t), budget, 1920, 1080);
-        let ts = size_for_budget(|t| small.tile_bytes(t), budget, 1920, 1080);
-        assert!(tp < ts, "{tp} vs {ts}");
-        assert!(paper.tile_bytes(tp) <= budget);
-        assert_eq!(size_for_budget(|t| small.tile_bytes(t), usize::MAX, 40, 20), 48);
+        let (tp, ts) = (side(paper, budget, 1920, 1080), side(small, budget, 1920, 1080));
+        assert!(tp.0 * tp.1 < ts.0 * ts.1, "{tp:?} vs {ts:?}");
+        assert!(paper.region_bytes(tp.0 + 2 * 18, tp.1 + 2 * 18, tp.0, tp.1) <= budget);
+        assert_eq!(side(small, usize::MAX, 40, 20), (48, 32));
     }
 
     #[test]
@@ -535,6 +677,7 @@ mod tests {
             kernel_size: 1,
             clamp: Default::default(),
             variances: Default::default(),
+            specular: Default::default(),
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -580,6 +723,7 @@ mod tests {
                 kernel_size: 3,
                 clamp: Default::default(),
                 variances: Default::default(),
+                specular: Default::default(),
             },
             7,
         )

@@ -325,13 +325,17 @@ pub fn batch(
         let fe = &f.features;
         input.extend(fe.branch_input(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, p + 2 * rf));
         let c = fe.colour(b);
-        noisy.extend(fe.region(
+        let region = fe.region(
             &crate::eval::rgb(c),
             x0 as isize - rk as isize,
             y0 as isize - rk as isize,
             p + 2 * rk,
             p + 2 * rk,
-        ));
+        );
+        match b {
+            Branch::Specular => noisy.extend(region.into_iter().map(|v| arch.specular.kernel_input(v))),
+            Branch::Diffuse => noisy.extend(region),
+        }
         let t = match b {
             Branch::Diffuse => &f.target_d,
             Branch::Specular => &f.target_s,

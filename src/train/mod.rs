@@ -15,7 +15,7 @@ use crate::features::EPSILON;
 use crate::kernel::ops::Ops;
 #[cfg(doc)]
 use crate::model::Architecture;
-use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
+use crate::model::{BranchWeights, Design, Kind, Model, ModelError, Specular, multiscale};
 use candle_core::{DType, Device, Tensor, Var};
 pub use records::LogRow;
 
@@ -181,11 +181,11 @@ pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
     Ok((a - b)?.abs()?.mean_all()?)
 }
 
-/// Recomposed colour `(albedo + ε) ⊙ d̂ + exp(ŝ) − 1` (ŝ clamped below 80).
-pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor) -> Result<Tensor, ModelError> {
+/// Recomposed colour `(albedo + ε) ⊙ d̂` plus the specular radiance of `ŝ`
+/// ([`Specular::radiance_tensor`]).
+pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor, domain: Specular) -> Result<Tensor, ModelError> {
     let diffuse = ((albedo + EPSILON as f64)? * d_hat)?;
-    let specular = (s_hat.clamp(-80f32, 80f32)?.exp()? - 1.0)?;
-    Ok((diffuse + specular)?)
+    Ok(diffuse.add(&domain.radiance_tensor(s_hat)?)?)
 }
 
 /// A scalar tensor's value.
@@ -214,6 +214,33 @@ mod tests {
         }
         assert!(adam.state().iter().all(|(_, t)| !t.track_op()));
         assert!(x.as_tensor().is_variable());
+    }
+
+    #[test]
+    fn the_cosine_schedule_starts_at_each_phase_rate_and_ends_at_its_floor() {
+        let o = TrainOptions {
+            phase1_steps: 101,
+            phase2_steps: 11,
+            batch: 1,
+            patch: 8,
+            lr: 1e-3,
+            lr_phase2: 1e-4,
+            seed: 0,
+            importance: false,
+            checkpoint_every: 1,
+            validate_every: 1,
+            ops: Default::default(),
+            cosine: true,
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(o.learning_rate(1), 1e-3));
+        assert!(close(o.learning_rate(51), 1e-3 * (0.5 + COSINE_FLOOR / 2.0)));
+        assert!(close(o.learning_rate(101), 1e-3 * COSINE_FLOOR));
+        assert!(close(o.learning_rate(102), 1e-4));
+        assert!(close(o.learning_rate(112), 1e-4 * COSINE_FLOOR));
+        assert!((2..=101).all(|s| o.learning_rate(s) < o.learning_rate(s - 1)));
+        let constant = TrainOptions { cosine: false, ..o };
+        assert!(close(constant.learning_rate(60), 1e-3) && close(constant.learning_rate(110), 1e-4));
     }
 
     #[test]
@@ -254,6 +281,29 @@ pub struct TrainOptions {
     pub validate_every: u64,
     /// The implementation the training graph runs (candle's stock ops only to compare).
     pub ops: Ops,
+    /// Cosine learning-rate decay within each phase, from its rate down to
+    /// [`COSINE_FLOOR`] of it; else constant rates.
+    pub cosine: bool,
+}
+
+/// Where a cosine schedule ends, as a fraction of the phase's starting rate.
+pub const COSINE_FLOOR: f64 = 0.05;
+
+impl TrainOptions {
+    /// The learning rate of step `step` (1-based, counted over both phases): a function
+    /// of the step alone, so a resumed run follows the same schedule.
+    pub fn learning_rate(&self, step: u64) -> f64 {
+        let (base, at, len) = if step <= self.phase1_steps {
+            (self.lr, step, self.phase1_steps)
+        } else {
+            (self.lr_phase2, step - self.phase1_steps, self.phase2_steps)
+        };
+        if !self.cosine || len <= 1 {
+            return base;
+        }
+        let t = (at.saturating_sub(1)) as f64 / (len - 1) as f64;
+        base * (COSINE_FLOOR + (1.0 - COSINE_FLOOR) * 0.5 * (1.0 + (std::f64::consts::PI * t).cos()))
+    }
 }
 
 /// relMSE of the denoised held-out frames against their references.
@@ -423,10 +473,13 @@ impl<'a> Trainer<'a> {
             validation_median_relmse: None,
             patches_per_second: 0.0,
         };
+        let lr = self.opts.learning_rate(self.step);
+        (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
         if self.step <= self.opts.phase1_steps {
             let ld = l1(&self.model.predict(true, &bd.input, &bd.noisy)?, &bd.target)?;
             self.adam_d.step(&self.model.vars(true, false), &ld)?;
-            let ls = l1(&self.model.predict(false, &bs.input, &bs.noisy)?, &bs.target)?;
+            let s_hat = self.model.predict(false, &bs.input, &bs.noisy)?;
+            let ls = l1(&arch.specular.log_tensor(&s_hat)?, &bs.target)?;
             self.adam_s.step(&self.model.vars(false, true), &ls)?;
             row.loss_diffuse = scalar(&ld)? as f64;
             row.loss_specular = scalar(&ls)? as f64;
@@ -434,7 +487,7 @@ impl<'a> Trainer<'a> {
             row.phase = 2;
             let d = self.model.predict(true, &bd.input, &bd.noisy)?;
             let s = self.model.predict(false, &bs.input, &bs.noisy)?;
-            let lc = l1(&recompose(&bd.albedo, &d, &s)?, &bd.reference)?;
+            let lc = l1(&recompose(&bd.albedo, &d, &s, arch.specular)?, &bd.reference)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }

@@ -101,16 +101,23 @@ pub fn garbage(path: &Path) {
 
 /// A tiny multi-scale KPCN (2 pooling levels, 4…12 channels, 3×3 kernels): fast in tests.
 pub fn tiny_multiscale(seed: u64) -> kpcn::model::Model {
+    tiny_multiscale_levels(seed, 2)
+}
+
+/// [`tiny_multiscale`] with `levels` pooling levels: 5 gives the ladder's 192-px receptive
+/// radius, beyond the 64 px a region reaches past the frame's edges.
+pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
     use kpcn::model::{Architecture, Design, Kind, Model};
     let arch = Architecture {
         kind: Kind::Kpcn,
         design: Design::MultiScale,
-        layers: 2,
+        layers: levels,
         channels: 4,
         conv_size: 3,
         kernel_size: 3,
         clamp: Default::default(),
         variances: Default::default(),
+        specular: Default::default(),
     };
     Model::xavier(arch, seed).unwrap()
 }

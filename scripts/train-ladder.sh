@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Rebuilds the quality ladder's models (models/fast.safetensors, balanced, high) from
+# nothing: simulator data at 320x180 (shared by the rungs), then one training run per rung
+# from Xavier initialisation. Rerun it after an interruption: the data step is skipped when
+# its manifest exists, a finished rung (WORK/RUNG/model.safetensors) is skipped, and an
+# unfinished one resumes bit-exactly from its last checkpoint (`--resume`).
+#
+#   scripts/train-ladder.sh [RUNG...]     # rungs: fast balanced high (default: all three,
+#                                         # balanced first)
+#   KPCN_WORK=DIR                         # work folder (default ./train-ladder)
+#   KPCN_STEPS_<RUNG>=N                   # phase-1 steps of a rung (defaults below)
+#
+# Then: cp WORK/RUNG/model.safetensors models/RUNG.safetensors
+# Runs at low priority (nice 19) so builds and tests beside it keep their cores.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+work=${KPCN_WORK:-train-ladder}
+rungs=("$@")
+[ ${#rungs[@]} -gt 0 ] || rungs=(balanced fast high)
+mkdir -p "$work"
+
+cargo build --release --locked --quiet
+# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
+cp target/release/kpcn "$work/kpcn"
+kpcn=$work/kpcn
+
+if [ ! -f "$work/data/manifest.csv" ]; then
+    rm -rf "$work/data.partial"
+    nice -n 19 "$kpcn" dataset --count 6 --spp 4,16,64 --reference-spp 512 --resolution 320x180 \
+        -o "$work/data.partial" -q
+    mv "$work/data.partial" "$work/data"
+fi
+
+for rung in "${rungs[@]}"; do
+    case $rung in
+        fast) default_steps=6000 ;;
+        balanced) default_steps=6000 ;;
+        high) default_steps=4000 ;;
+        *) echo "unknown rung '$rung': use fast, balanced or high" >&2; exit 2 ;;
+    esac
+    var=KPCN_STEPS_${rung^^}
+    steps=${!var:-$default_steps}
+    run=$work/$rung
+    if [ -f "$run/model.safetensors" ]; then
+        echo "$rung: done ($run/model.safetensors)"
+        continue
+    fi
+    resume=()
+    if [ -f "$run/checkpoint.safetensors" ]; then
+        resume=(--resume)
+    fi
+    # 96-px patches with 16 px of context: 128-px regions, 4×4 at the 5th level.
+    nice -n 19 "$kpcn" train --data "$work/data" -o "$run" --preset "$rung" \
+        --steps "$steps" --phase2-steps 400 --batch 4 --patch 96 --lr 1e-3 --lr-phase2 1e-4 \
+        --schedule cosine --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
+    echo "$rung: $run/model.safetensors (log: $run/log.csv)"
+done
