@@ -129,10 +129,11 @@ typedef struct KpcnOptions {
   uint32_t max_memory_mb;
   /**
    * A model by name, or NULL for `"default"`: `"default"`, `"spatial"` (trained on the
-   * spatial variance estimates of frames without variances), `"small-flat"`, or
-   * `"auto"`, which picks per frame as `kpcn denoise` does: `default` when the frame
-   * has a colour variance (a `colorVariance` image; in a file, per-pixel variances or
-   * half buffers), `spatial` when it has none.
+   * spatial variance estimates of frames without variances), `"small-flat"`, the
+   * quality ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
+   * frame as `kpcn denoise` does: `default` when the frame has a colour variance (a
+   * `colorVariance` image; in a file, per-pixel variances or half buffers), `spatial`
+   * when it has none.
    */
   const char *model_name;
   /**

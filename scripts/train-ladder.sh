@@ -9,8 +9,12 @@
 #                                         # balanced first)
 #   KPCN_WORK=DIR                         # work folder (default ./train-ladder)
 #   KPCN_STEPS_<RUNG>=N                   # phase-1 steps of a rung (defaults below)
+#   KPCN_VARIANCES=spatial                # train on the 3x3 spatial variance estimates that
+#                                         # files without variances get (Blender's): runs
+#                                         # go to WORK/RUNG-spatial
 #
 # Then: cp WORK/RUNG/model.safetensors models/RUNG.safetensors
+# (models/balanced-spatial.safetensors: KPCN_VARIANCES=spatial scripts/train-ladder.sh balanced)
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,7 +25,9 @@ mkdir -p "$work"
 
 cargo build --release --locked --quiet
 # A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn"
+variances=${KPCN_VARIANCES:-file}
+cp target/release/kpcn "$work/kpcn.$$"
+mv "$work/kpcn.$$" "$work/kpcn"
 kpcn=$work/kpcn
 
 if [ ! -f "$work/data/manifest.csv" ]; then
@@ -41,6 +47,7 @@ for rung in "${rungs[@]}"; do
     var=KPCN_STEPS_${rung^^}
     steps=${!var:-$default_steps}
     run=$work/$rung
+    [ "$variances" = file ] || run=$work/$rung-$variances
     if [ -f "$run/model.safetensors" ]; then
         echo "$rung: done ($run/model.safetensors)"
         continue
@@ -52,6 +59,7 @@ for rung in "${rungs[@]}"; do
     # 96-px patches with 16 px of context: 128-px regions, 4×4 at the 5th level.
     nice -n 19 "$kpcn" train --data "$work/data" -o "$run" --preset "$rung" \
         --steps "$steps" --phase2-steps 400 --batch 4 --patch 96 --lr 1e-3 --lr-phase2 1e-4 \
-        --schedule cosine --checkpoint-every 200 --validate-every 500 -q "${resume[@]}"
+        --schedule cosine --variances "$variances" --checkpoint-every 200 --validate-every 500 -q \
+        "${resume[@]}"
     echo "$rung: $run/model.safetensors (log: $run/log.csv)"
 done

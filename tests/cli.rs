@@ -247,3 +247,26 @@ fn auto_picks_the_spatial_model_for_files_without_variances() {
     });
     assert_eq!(outs[0], outs[1]);
 }
+
+#[test]
+fn quality_names_a_rung_of_the_ladder_and_refuses_a_model_beside_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(40, 24, 6, &[]), dir.path(), "in.exr");
+    let bits = |p: &Path| {
+        let fb = kpcn::io::FrameBuffers::read(p).unwrap();
+        fb.channel("denoised.G").unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    let mut seen = Vec::new();
+    for rung in ["fast", "balanced", "high"] {
+        let (q, m) = (dir.path().join(format!("q-{rung}.exr")), dir.path().join(format!("m-{rung}.exr")));
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", q.to_str().unwrap(), "-q", "--quality", rung]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", m.to_str().unwrap(), "-q", "--model", rung]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        assert_eq!(bits(&q), bits(&m), "--quality {rung} is --model {rung}");
+        seen.push(bits(&q));
+    }
+    assert!(seen[0] != seen[1] && seen[1] != seen[2], "three different models");
+    let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", "x.exr", "--quality", "fast", "--model", "default"]);
+    assert!(!o.status.success() && text(&o.stderr).contains("--quality"), "{}", text(&o.stderr));
+}

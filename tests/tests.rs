@@ -6,6 +6,7 @@ mod capi;
 mod cli;
 mod denoise;
 mod eval;
+mod hard_cases;
 mod io_errors;
 mod io_roundtrip;
 mod layering;

@@ -53,10 +53,11 @@ pub struct KpcnOptions {
     /// Working-memory budget in MB for one tile's network; 0 = the default (512).
     pub max_memory_mb: u32,
     /// A model by name, or NULL for `"default"`: `"default"`, `"spatial"` (trained on the
-    /// spatial variance estimates of frames without variances), `"small-flat"`, or
-    /// `"auto"`, which picks per frame as `kpcn denoise` does: `default` when the frame
-    /// has a colour variance (a `colorVariance` image; in a file, per-pixel variances or
-    /// half buffers), `spatial` when it has none.
+    /// spatial variance estimates of frames without variances), `"small-flat"`, the
+    /// quality ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
+    /// frame as `kpcn denoise` does: `default` when the frame has a colour variance (a
+    /// `colorVariance` image; in a file, per-pixel variances or half buffers), `spatial`
+    /// when it has none.
     pub model_name: *const c_char,
     /// A model file (`.safetensors` written by `kpcn train`), or NULL.
     pub model_path: *const c_char,

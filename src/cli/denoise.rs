@@ -42,6 +42,12 @@ pub struct DenoiseArgs {
     /// (`paper`, `small`, `multiscale`) for testing.
     #[arg(long, default_value = "auto", value_name = "MODEL")]
     pub model: String,
+    /// A rung of the quality ladder instead of --model: U-Nets that see 188 px around
+    /// each pixel, like OIDN's quality modes. `fast` (≈0.5× the time of OIDN 'high' at
+    /// 720p), `balanced` (≈0.8×), `high` (≈1.3×); models/README.md has their quality.
+    /// Trained on per-pixel variances: files without them get spatial estimates.
+    #[arg(long, value_enum, conflicts_with = "model", value_name = "fast|balanced|high")]
+    pub quality: Option<QualityArg>,
     /// Run an untrained preset (its images are useless: it only tests the pipeline).
     #[arg(long)]
     pub allow_untrained: bool,
@@ -79,7 +85,10 @@ pub struct DenoiseArgs {
     /// tile's network activations to all of it. Not counted: the process's fixed cost
     /// (program, libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB).
     /// Measured peak RSS for a 1920x1152 frame with 38 channels: 64 -> 487 MB, 512 -> 712,
-    /// 1024 -> 862; 3840x2160 with 41 channels at the default: 879 MB.
+    /// 1024 -> 862; 3840x2160 with 41 channels at the default: 879 MB. A band is never
+    /// thinner than twice the context rows it reads when the budget allows fewer than
+    /// those: the ladder (--quality) reads 194 each side and exceeds the budget at 4K
+    /// (`balanced`: 1.86 GB).
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
@@ -177,8 +186,12 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             return Ok(());
         }
     }
-    let auto = args.model == "auto";
-    let model = Model::resolve(if auto { "default" } else { &args.model })?;
+    let name = match args.quality {
+        Some(q) => q.rung().name(),
+        None => args.model.as_str(),
+    };
+    let auto = name == "auto";
+    let model = Model::resolve(if auto { "default" } else { name })?;
     if model.is_untrained() && !args.allow_untrained {
         return Err(Usage(format!(
             "--model {}: an untrained architecture preset ({}) gives useless images — use `default`, `small-flat` or a trained .safetensors file, or give --allow-untrained to test the pipeline with it",
@@ -274,6 +287,28 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         println!("{} frames denoised", jobs.len());
     }
     Ok(())
+}
+
+/// `--quality` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum QualityArg {
+    /// The cheapest rung.
+    Fast,
+    /// The middle rung.
+    Balanced,
+    /// The best rung.
+    High,
+}
+
+impl QualityArg {
+    /// The ladder's rung.
+    pub fn rung(self) -> crate::model::Quality {
+        match self {
+            QualityArg::Fast => crate::model::Quality::Fast,
+            QualityArg::Balanced => crate::model::Quality::Balanced,
+            QualityArg::High => crate::model::Quality::High,
+        }
+    }
 }
 
 /// The model given, or with `--model auto` the two it picks from.

@@ -3,7 +3,7 @@
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
-use crate::model::{Clamp, Model, Variances};
+use crate::model::{Clamp, Model, Specular, Variances};
 use crate::train::data::Dataset;
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
 use crate::train::{curves, records};
@@ -38,6 +38,11 @@ pub struct TrainArgs {
     /// or the --init model's.
     #[arg(long, value_enum, value_name = "hard|spread")]
     pub clamp: Option<ClampArg>,
+    /// What the specular kernels filter: `log` (ln(1 + s), as Bako et al.) or `linear`
+    /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or
+    /// the --init model's.
+    #[arg(long, value_enum, value_name = "log|linear")]
+    pub specular: Option<SpecularArg>,
     /// Variance features to train on: `file` (the dataset's own per-pixel variances) or
     /// `spatial` (3×3 spatial estimates, what files without variances, such as Blender's,
     /// give at inference). Recorded in the model, which is then always fed that kind.
@@ -140,6 +145,15 @@ pub enum VariancesArg {
     Spatial,
 }
 
+/// `--specular` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SpecularArg {
+    /// ln(1 + s).
+    Log,
+    /// Linear radiance.
+    Linear,
+}
+
 /// `--clamp` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ClampArg {
@@ -204,7 +218,14 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 ClampArg::Spread => Clamp::Spread,
             };
         }
+        if let Some(d) = args.specular {
+            model.arch.specular = match d {
+                SpecularArg::Log => Specular::Log,
+                SpecularArg::Linear => Specular::Linear,
+            };
+        }
         model.arch.variances = variances;
+        model.arch.validate("kpcn train")?;
         records::write_log(&log_path, &[])?;
         Trainer::new(&model, &data, opts.clone())?
     };

@@ -130,9 +130,13 @@ impl FileJob {
         let (w, h) = self.size();
         let budget = denoiser.options.max_memory_mb << 20;
         let by_budget = budget / (w.max(1) * 4 * BAND_FLOATS_PER_PIXEL);
+        // A band thinner than its context rows would spend most of its work on them (the
+        // ladder's 194 rows each side at 4K: 5× the frame's work in 96-row bands): then a
+        // band is twice the context, over budget rather than several times slower.
+        let halo = denoiser.halo();
+        let by_budget = if by_budget < halo { 2 * halo } else { by_budget.max(16) };
         // Bands start on the network's pooling grid.
-        let rows =
-            opts.band_rows.unwrap_or(by_budget.max(16)).max(1).next_multiple_of(denoiser.model().arch.alignment());
+        let rows = opts.band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
         rows.min(h.max(1))
     }
 

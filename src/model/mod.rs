@@ -24,8 +24,13 @@ static SMALL_FLAT_MODEL: &[u8] = include_bytes!("../../models/small.safetensors"
 /// (`spatial`): for files without variances, such as Blender's own output.
 static SPATIAL_MODEL: &[u8] = include_bytes!("../../models/spatial.safetensors");
 
+/// The quality ladder's rungs (`--quality`, [`Architecture::ladder`]).
+static FAST_MODEL: &[u8] = include_bytes!("../../models/fast.safetensors");
+static BALANCED_MODEL: &[u8] = include_bytes!("../../models/balanced.safetensors");
+static HIGH_MODEL: &[u8] = include_bytes!("../../models/high.safetensors");
+
 /// Names of the trained models shipped inside the library, for `Model::resolve`.
-pub const SHIPPED: [&str; 3] = ["default", "spatial", "small-flat"];
+pub const SHIPPED: [&str; 6] = ["default", "spatial", "small-flat", "fast", "balanced", "high"];
 
 /// Kernel prediction or direct prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,11 +131,11 @@ impl Specular {
 /// widths ([`Architecture::ladder`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Quality {
-    /// About half the balanced rung's time.
+    /// About 0.6× the balanced rung's time.
     Fast,
     /// The default trade-off.
     Balanced,
-    /// Best quality, about twice the time.
+    /// The widest, about 1.6× the balanced rung's time.
     High,
 }
 
@@ -193,7 +198,7 @@ pub enum ModelError {
     },
     /// Unknown preset name.
     #[error(
-        "unknown model `{0}` — use a shipped model (`default`, `spatial`, `small-flat`), a .safetensors file, or an untrained preset (`paper`, `small`, `multiscale`, for testing)"
+        "unknown model `{0}` — use a shipped model (`default`, `spatial`, `small-flat`, `fast`, `balanced`, `high`), a .safetensors file, or an untrained preset (`paper`, `small`, `multiscale`, for testing)"
     )]
     UnknownPreset(String),
     /// A tensor computation failed.
@@ -252,8 +257,8 @@ impl Architecture {
     /// A rung of the quality ladder (`--quality`): a multi-scale KPCN with 5 pooling
     /// levels, so 5×5 kernels reach ¹⁄₁₆ resolution and the receptive radius is 188 px
     /// (OIDN's U-Net: ≈174), with full-resolution widths 8 (`fast`), 16 (`balanced`) or
-    /// 24 (`high`), growing by that much per level; the spreading firefly clamp, and
-    /// specular kernels on linear radiance.
+    /// 24 (`high`), growing by that much per level; the spreading firefly clamp and log
+    /// specular, as the default.
     pub fn ladder(quality: Quality) -> Self {
         Architecture {
             layers: 5,
@@ -262,7 +267,6 @@ impl Architecture {
                 Quality::Balanced => 16,
                 Quality::High => 24,
             },
-            specular: Specular::Linear,
             ..Self::multiscale()
         }
     }
@@ -376,7 +380,8 @@ impl Architecture {
         }
     }
 
-    fn validate(&self, origin: &str) -> Result<(), ModelError> {
+    /// Refuses impossible architectures (`origin` names the source in the error).
+    pub fn validate(&self, origin: &str) -> Result<(), ModelError> {
         let bad = |what: String| Err(ModelError::Format { origin: origin.into(), what });
         if self.layers == 0
             || self.channels == 0
@@ -542,12 +547,16 @@ impl Model {
         Self::from_bytes(DEFAULT_MODEL, "embedded default model")
     }
 
-    /// A shipped model (`default`, `spatial`, `small-flat`), a preset name (`paper`, `small`,
-    /// `multiscale`: untrained, Xavier seed 0; see [`Model::is_untrained`]) or a file path.
+    /// A shipped model (`default`, `spatial`, `small-flat`, the ladder's `fast`, `balanced`,
+    /// `high`), a preset name (`paper`, `small`, `multiscale`: untrained, Xavier seed 0; see
+    /// [`Model::is_untrained`]) or a file path.
     pub fn resolve(name: &str) -> Result<Model, ModelError> {
         match name {
             "default" => Self::embedded_default(),
             "small-flat" => Self::from_bytes(SMALL_FLAT_MODEL, "shipped model small-flat"),
+            "fast" => Self::shipped_rung(Quality::Fast),
+            "balanced" => Self::shipped_rung(Quality::Balanced),
+            "high" => Self::shipped_rung(Quality::High),
             "spatial" => Self::from_bytes(SPATIAL_MODEL, "shipped model spatial"),
             "paper" => Self::xavier(Architecture::paper(Kind::Kpcn), 0),
             "small" => Self::xavier(Architecture::small(Kind::Kpcn), 0),
@@ -557,6 +566,16 @@ impl Model {
             p if p.ends_with(".safetensors") => Self::load(Path::new(p)),
             other => Err(ModelError::UnknownPreset(other.into())),
         }
+    }
+
+    /// The shipped model of a rung of the quality ladder.
+    pub fn shipped_rung(q: Quality) -> Result<Model, ModelError> {
+        let bytes = match q {
+            Quality::Fast => FAST_MODEL,
+            Quality::Balanced => BALANCED_MODEL,
+            Quality::High => HIGH_MODEL,
+        };
+        Self::from_bytes(bytes, &format!("shipped model {}", q.name()))
     }
 
     /// Reads a model file.
@@ -744,6 +763,15 @@ mod tests {
         assert!(e.contains("input layout `kpcn28-2019`"), "{e}");
         let e = Model::from_bytes(b"not a model", "junk.safetensors").unwrap_err().to_string();
         assert!(e.contains("junk.safetensors: not a safetensors file"), "{e}");
+    }
+
+    #[test]
+    fn every_rung_of_the_ladder_is_shipped_with_its_architecture() {
+        for q in Quality::ALL {
+            let m = Model::resolve(q.name()).unwrap();
+            assert_eq!(m.arch, Architecture::ladder(q), "{}", q.name());
+            assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
+        }
     }
 
     #[test]

@@ -1,0 +1,172 @@
+//! The shipped default on small simulator frames built to provoke known failures (issue 15):
+//! brightness lost, error that grows with samples, isolated fireflies that survive. Scenes
+//! use permutation seeds far beyond any training set's (`kpcn dataset --count` ≤ 6), so the
+//! model never saw them.
+
+use kpcn::denoise::{Denoised, Denoiser, Options};
+use kpcn::eval::{relmse, rgb};
+use kpcn::io::FrameBuffers;
+use kpcn::io::layout::{KpcnInputs, Mapping};
+use kpcn::model::Model;
+use kpcn::sim::families::{FAMILIES, generate};
+use kpcn::sim::{RenderOptions, render};
+
+/// The shipped models for files with variances: what `kpcn denoise` runs, and the ladder.
+const MODELS: [&str; 4] = ["default", "fast", "balanced", "high"];
+
+/// Frames the shipped models still darken by more than 1 % (issue 15's target): (model,
+/// family, spp, the largest loss allowed until the bias is fixed at its source). Measured
+/// losses, 2026-12-01, at 4 / 16 spp: default firefly 3.8 / 6.4 %, corridor 2.5 / 1.7 %,
+/// dof 1.85 % at 4, interior 1.8 / 1.2 %; fast firefly 8.4 / 5.0 %; balanced firefly
+/// 8.3 / 6.1 %, corridor 3.8 / 2.4 %, interior 1.3 % at 4; high firefly 8.0 / 5.7 %,
+/// corridor 2.5 / 1.4 %, interior 1.7 % at 4. Log-space specular filtering and the L1
+/// loss's pull toward the median are the suspects (BENCHMARKS.md). A frame not listed
+/// must stay within 1 %, and a listed one must not get darker.
+const KNOWN_DARK: &[(&str, &str, u32, f64)] = &[
+    ("default", "firefly", 4, 0.045),
+    ("default", "firefly", 16, 0.07),
+    ("default", "corridor", 4, 0.03),
+    ("default", "corridor", 16, 0.022),
+    ("default", "dof", 4, 0.023),
+    ("default", "interior", 4, 0.023),
+    ("default", "interior", 16, 0.017),
+    ("fast", "firefly", 4, 0.095),
+    ("fast", "firefly", 16, 0.06),
+    ("balanced", "firefly", 4, 0.09),
+    ("balanced", "firefly", 16, 0.067),
+    ("balanced", "corridor", 4, 0.043),
+    ("balanced", "corridor", 16, 0.029),
+    ("balanced", "interior", 4, 0.018),
+    ("high", "firefly", 4, 0.09),
+    ("high", "firefly", 16, 0.067),
+    ("high", "corridor", 4, 0.035),
+    ("high", "corridor", 16, 0.024),
+    ("high", "interior", 4, 0.027),
+];
+
+/// Frames of family `family`, permutation `seed`, at each of `spp` (one run), and an
+/// independent reference when `reference` is given.
+fn frames(family: &str, seed: u64, (w, h): (usize, usize), spp: &[u32], reference: Option<u32>) -> Vec<KpcnInputs> {
+    let desc = generate(family, seed).unwrap();
+    let scene = desc.build(w as f32 / h as f32).unwrap();
+    let opts = RenderOptions { width: w, height: h, checkpoints: spp.to_vec(), sample_seed: 1, nee: true };
+    let mut out: Vec<FrameBuffers> =
+        render(&scene, &opts, &[], &|_| {}).unwrap().frames.into_iter().map(|f| f.1).collect();
+    if let Some(r) = reference {
+        let opts = RenderOptions { checkpoints: vec![r], sample_seed: 77, ..opts };
+        out.extend(render(&scene, &opts, &[], &|_| {}).unwrap().frames.into_iter().map(|f| f.1));
+    }
+    out.iter().map(|fb| Mapping::for_frame(fb, None).extract(fb).unwrap()).collect()
+}
+
+fn denoiser_of(model: &str) -> Denoiser {
+    Denoiser::new(Model::resolve(model).unwrap(), Options { threads: Some(2), ..Options::default() }).unwrap()
+}
+
+fn denoise(d: &Denoiser, k: &KpcnInputs) -> Denoised {
+    d.denoise(k, &|_| true).unwrap()
+}
+
+fn mean(p: &[Vec<f32>; 3]) -> f64 {
+    p.iter().flatten().map(|&v| v as f64).sum::<f64>() / (p[0].len() * 3) as f64
+}
+
+#[test]
+fn every_family_keeps_its_brightness_within_one_percent_but_the_known_gaps() {
+    // The noisy frame is an unbiased estimate of the reference: the denoised mean must stay
+    // within 1 % of it, at 4 and 16 samples, in every family; the frames of KNOWN_DARK
+    // within their recorded loss.
+    let scenes: Vec<(&str, u32, KpcnInputs)> = FAMILIES
+        .iter()
+        .flat_map(|(family, _)| {
+            frames(family, 101, (96, 64), &[4, 16], None).into_iter().zip([4, 16]).map(|(k, s)| (*family, s, k))
+        })
+        .collect();
+    let mut failures = Vec::new();
+    for model in MODELS {
+        let d = denoiser_of(model);
+        for (family, spp, k) in &scenes {
+            let (noisy, out) = (mean(&k.color), mean(&denoise(&d, k).color));
+            let loss = 1.0 - out / noisy;
+            let allowed = KNOWN_DARK.iter().find(|g| (g.0, g.1, g.2) == (model, *family, *spp)).map_or(0.01, |g| g.3);
+            if loss.abs() > allowed {
+                failures.push(format!(
+                    "{model} {family} {spp} spp: denoised mean {out:.5} against noisy {noisy:.5} ({:+.2} %, allowed {:.1} %)",
+                    -100.0 * loss,
+                    100.0 * allowed
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn error_does_not_grow_with_samples_on_highlights_and_caustics() {
+    // Sunlit highlights and a small bright light with caustics: where the old default's
+    // error rose from 16 to 64 spp. More samples must never make the result worse.
+    let scenes: Vec<(&str, Vec<KpcnInputs>)> = ["firefly", "product", "courtyard"]
+        .into_iter()
+        .map(|family| (family, frames(family, 102, (96, 64), &[4, 16, 64], Some(1024))))
+        .collect();
+    for model in MODELS {
+        let d = denoiser_of(model);
+        for (family, f) in &scenes {
+            let reference = &f[3].color;
+            let errors: Vec<f64> = f[..3].iter().map(|k| relmse(rgb(&denoise(&d, k).color), rgb(reference))).collect();
+            let noisy: Vec<f64> = f[..3].iter().map(|k| relmse(rgb(&k.color), rgb(reference))).collect();
+            for i in 0..3 {
+                assert!(errors[i] < noisy[i], "{model} {family}: denoised {errors:?} against noisy {noisy:?}");
+            }
+            // 5 % slack for the reference's own noise.
+            assert!(
+                errors[1] <= 1.05 * errors[0] && errors[2] <= 1.05 * errors[1],
+                "{model} {family}: relMSE {errors:?} at 4/16/64 spp"
+            );
+        }
+    }
+}
+
+#[test]
+fn isolated_fireflies_do_not_survive() {
+    // Single-pixel outliers 1e4 brighter than a converged frame, in the diffuse and the
+    // specular light: none may be left as a speck. Its energy may stay, spread out (the
+    // shipped default leaves at most 5.6 on a 0.2 background), but not its peak (a kept
+    // speck would be ≥ 3e4 / 9 after the spreading clamp).
+    let mut k = frames("cornell", 103, (96, 64), &[64], None).remove(0);
+    let (w, h) = (k.width, k.height);
+    let clean = k.clone();
+    let spots = [(20, 20, true), (60, 40, false), (75, 12, true), (40, 50, false)];
+    for &(x, y, diffuse) in &spots {
+        let i = y * w + x;
+        for c in 0..3 {
+            let add = 1e4;
+            if diffuse {
+                k.diffuse[c][i] += add
+            } else {
+                k.specular[c][i] += add
+            }
+            k.color[c][i] += add;
+        }
+    }
+    for model in MODELS {
+        let d = denoiser_of(model);
+        let (base, out) = (denoise(&d, &clean), denoise(&d, &k));
+        assert!(out.color.iter().flatten().all(|v| v.is_finite()));
+        for &(x, y, _) in &spots {
+            for (dy, dx) in (-2isize..=2).flat_map(|dy| (-2isize..=2).map(move |dx| (dy, dx))) {
+                let (px, py) = ((x as isize + dx) as usize, (y as isize + dy) as usize);
+                if px >= w || py >= h {
+                    continue;
+                }
+                let j = py * w + px;
+                let v: f32 = (0..3).map(|c| out.color[c][j]).sum();
+                let b: f32 = (0..3).map(|c| base.color[c][j]).sum();
+                assert!(
+                    v < b + 1e-3 * 3e4,
+                    "{model}: a firefly at {x},{y} survives at {px},{py}: {v} against {b} without it"
+                );
+            }
+        }
+    }
+}
