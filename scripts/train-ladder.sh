@@ -39,9 +39,9 @@ fi
 
 for rung in "${rungs[@]}"; do
     case $rung in
-        fast) default_steps=6000 ;;
+        fast) default_steps=5000 ;;
         balanced) default_steps=6000 ;;
-        high) default_steps=4000 ;;
+        high) default_steps=2500 ;;
         *) echo "unknown rung '$rung': use fast, balanced or high" >&2; exit 2 ;;
     esac
     var=KPCN_STEPS_${rung^^}

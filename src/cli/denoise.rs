@@ -43,8 +43,8 @@ pub struct DenoiseArgs {
     #[arg(long, default_value = "auto", value_name = "MODEL")]
     pub model: String,
     /// A rung of the quality ladder instead of --model: U-Nets that see 188 px around
-    /// each pixel, like OIDN's quality modes. `fast` (≈0.5× the time of OIDN 'high' at
-    /// 720p), `balanced` (≈0.8×), `high` (≈1.3×); models/README.md has their quality.
+    /// each pixel, like OIDN's quality modes. `fast` (≈0.45× the time of OIDN 'high' at
+    /// 720p), `balanced` (≈0.7×), `high` (≈1.2×); models/README.md has their quality.
     /// Trained on per-pixel variances: files without them get spatial estimates.
     #[arg(long, value_enum, conflicts_with = "model", value_name = "fast|balanced|high")]
     pub quality: Option<QualityArg>,
