@@ -136,7 +136,11 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     let run = dir.path().join("run");
     let (d, r) = (dir.path().to_str().unwrap(), run.to_str().unwrap());
     let common = ["--preset", "small", "--batch", "1", "--patch", "16", "--holdout", "3", "-q"];
-    let out = kpcn(&[&["train", "--data", d, "-o", r, "--steps", "2", "--validate-every", "2"], &common[..]].concat());
+    // A scene folder of the dataset stands in for the dev set (its layout is the same).
+    let dev = dir.path().join("glass-0000");
+    let train =
+        ["train", "--data", d, "-o", r, "--steps", "2", "--validate-every", "2", "--dev", dev.to_str().unwrap()];
+    let out = kpcn(&[&train[..], &common[..]].concat());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let model = run.join("model.safetensors");
     assert!(model.is_file() && run.join("checkpoint.safetensors").is_file());
@@ -146,6 +150,14 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     assert_eq!(log.lines().count(), 3, "{log}");
     let validated: Vec<&str> = log.lines().nth(2).unwrap().split(',').collect();
     assert!(validated[5].parse::<f64>().is_ok() && validated[7].parse::<f64>().is_ok(), "validated: {log}");
+    assert!(validated[8].parse::<f64>().is_ok_and(|v| v > 0.0), "the dev set is scored: {log}");
+    assert!(log.lines().nth(1).unwrap().ends_with(','), "and only when validating: {log}");
+    // A dev folder without frames is refused, naming it.
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let refused = kpcn(&["train", "--data", d, "-o", r, "--steps", "1", "--dev", empty.to_str().unwrap(), "-q"]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && err.contains("empty") && err.contains("SCENE-ref.exr"), "{err}");
     // A row logged after the checkpoint (an interrupted run) is dropped on resume.
     let log_path = run.join("log.csv");
     std::fs::write(&log_path, log.clone() + "3,1,0.5,0.5,,,1.0\n").unwrap();

@@ -4,7 +4,7 @@ use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
 use crate::model::{Clamp, Model, Specular, Variances};
-use crate::train::data::Dataset;
+use crate::train::data::{CheckSet, Dataset};
 use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
 use crate::train::{curves, records};
 use anyhow::{Context, bail};
@@ -78,6 +78,13 @@ pub struct TrainArgs {
     /// Patch selection.
     #[arg(long, value_enum, default_value_t = Patches::Importance)]
     pub patches: Patches,
+    /// A check set scored at every validation and never trained on: a folder of
+    /// SCENE-NNNNNspp.exr files beside their SCENE-ref.exr, such as the team's Cycles dev
+    /// set (../shared/data/cycles-dev). Its geometric-mean relMSE goes to log.csv
+    /// (`dev_relmse_geomean`) and training.png. For watching generalisation only: never
+    /// choose a model by it.
+    #[arg(long, value_name = "DIR")]
+    pub dev: Option<PathBuf>,
     /// Hold out every N-th scene (whole scenes) for validation.
     #[arg(long, default_value_t = 5, value_name = "N")]
     pub holdout: usize,
@@ -174,6 +181,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         VariancesArg::Spatial => Variances::Spatial,
     };
     let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, variances)?;
+    let dev = args.dev.as_deref().map(|d| CheckSet::load(d, variances)).transpose()?;
     let opts = TrainOptions {
         phase1_steps: args.steps,
         phase2_steps: args.phase2_steps,
@@ -275,9 +283,16 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             {
                 row.validation_relmse = Some(v.mean);
                 row.validation_median_relmse = Some(v.median);
+                if let Some(dev) = &dev {
+                    row.dev_relmse = trainer.check(dev)?;
+                }
             }
             let loss = if row.phase == 1 { row.loss_diffuse + row.loss_specular } else { row.loss_combined };
-            let val = row.validation_median_relmse.map(|v| format!(", val relMSE median {v:.4}")).unwrap_or_default();
+            let mut val =
+                row.validation_median_relmse.map(|v| format!(", val relMSE median {v:.4}")).unwrap_or_default();
+            if let Some(v) = row.dev_relmse {
+                val.push_str(&format!(", dev {v:.4}"));
+            }
             bar.set_message(format!(
                 "phase {} loss {loss:.4}{val}, {:.1} patches/s",
                 row.phase, row.patches_per_second

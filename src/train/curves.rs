@@ -19,6 +19,8 @@ pub struct Log {
     pub validation: Vec<(f64, f64)>,
     /// (step, median validation relMSE); absent in logs from before it was logged.
     pub validation_median: Vec<(f64, f64)>,
+    /// (step, geometric-mean relMSE of the `--dev` check set), when one was given.
+    pub dev: Vec<(f64, f64)>,
 }
 
 /// A `kpcn train` log's columns (see [`super::records::LogRow`]); malformed rows are
@@ -34,6 +36,7 @@ pub fn parse(text: &str) -> Log {
             (finite(r.loss_combined), &mut log.combined),
             (r.validation_relmse, &mut log.validation),
             (r.validation_median_relmse, &mut log.validation_median),
+            (r.dev_relmse, &mut log.dev),
         ];
         for (v, out) in columns {
             if let Some(v) = v {
@@ -67,6 +70,10 @@ pub fn chart(runs: &[(String, Log)]) -> Chart {
             ("validation relMSE (median)", &log.validation_median)
         };
         series.push(Series { name: format!("{prefix}{what}"), points: points.clone(), dashed: false });
+        if !log.dev.is_empty() {
+            let name = format!("{prefix}dev set relMSE (geometric mean)");
+            series.push(Series { name, points: log.dev.clone(), dashed: false });
+        }
         if runs.len() == 1 {
             for (what, p) in [("diffuse", &log.diffuse), ("specular", &log.specular), ("combined", &log.combined)] {
                 if !p.is_empty() {

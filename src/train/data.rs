@@ -119,6 +119,14 @@ pub enum DataError {
         /// What is wrong.
         msg: String,
     },
+    /// A check set (`--dev`) without frames.
+    #[error("{}: {msg} — give --dev a folder of noisy frames and their references", path.display())]
+    Check {
+        /// The folder.
+        path: PathBuf,
+        /// What is wrong.
+        msg: String,
+    },
     /// A frame could not be read or lacks channels.
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
@@ -284,6 +292,62 @@ impl Dataset {
             if held.contains(&&scene) { data.validation.push(frame) } else { data.train.push(frame) }
         }
         Ok(data)
+    }
+}
+
+/// Frames scored at every validation but never trained on: a folder of
+/// `SCENE-NNNNNspp.exr` files beside their `SCENE-ref.exr` (the team's Cycles dev set, or
+/// a `kpcn dataset` scene folder).
+pub struct CheckSet {
+    /// The frames, by file name.
+    pub frames: Vec<CheckFrame>,
+}
+
+/// One frame of a [`CheckSet`].
+pub struct CheckFrame {
+    /// The noisy file's name.
+    pub name: String,
+    /// Its preprocessed inputs.
+    pub features: Features,
+    /// The reference colour.
+    pub reference: [Vec<f32>; 3],
+}
+
+impl CheckSet {
+    /// Reads every noisy frame in `dir` that has a reference; `variances` as for
+    /// [`Dataset::load`]. A folder without any such frame is an error that says what it
+    /// looks for.
+    pub fn load(dir: &Path, variances: Variances) -> Result<CheckSet, DataError> {
+        let err = |msg: String| DataError::Check { path: dir.into(), msg };
+        let entries = std::fs::read_dir(dir).map_err(|e| err(e.to_string()))?;
+        let mut noisy: Vec<(String, PathBuf)> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter_map(|p| {
+                let name = p.file_name()?.to_str()?.to_string();
+                let scene = name.strip_suffix("spp.exr")?.rsplit_once('-')?;
+                (scene.1.len() == 5 && scene.1.bytes().all(|b| b.is_ascii_digit()))
+                    .then(|| (name.clone(), dir.join(format!("{}-ref.exr", scene.0))))
+            })
+            .filter(|(_, reference)| reference.is_file())
+            .map(|(name, reference)| (name, reference))
+            .collect();
+        noisy.sort();
+        if noisy.is_empty() {
+            return Err(err("no SCENE-NNNNNspp.exr beside a SCENE-ref.exr".into()));
+        }
+        let frames = noisy
+            .into_iter()
+            .map(|(name, reference)| {
+                let mut n = inputs(&dir.join(&name))?;
+                if variances == Variances::Spatial {
+                    n.estimate_variances_spatially();
+                }
+                let r = inputs(&reference)?;
+                let reference = std::array::from_fn(|c| r.color[c].iter().map(|&v| sanitize(v)).collect());
+                Ok(CheckFrame { name, features: Features::new(&n), reference })
+            })
+            .collect::<Result<_, DataError>>()?;
+        Ok(CheckSet { frames })
     }
 }
 

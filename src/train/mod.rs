@@ -472,6 +472,7 @@ impl<'a> Trainer<'a> {
             validation_relmse: None,
             validation_median_relmse: None,
             patches_per_second: 0.0,
+            dev_relmse: None,
         };
         let lr = self.opts.learning_rate(self.step);
         (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
@@ -500,18 +501,37 @@ impl<'a> Trainer<'a> {
         if self.data.validation.is_empty() {
             return Ok(None);
         }
-        let model = self.model.snapshot("validation")?;
-        let d = crate::denoise::Denoiser::new(model, crate::denoise::Options::default())?;
-        let mut errors = Vec::with_capacity(self.data.validation.len());
-        for f in &self.data.validation {
-            let out = d.denoise_features(&f.features, &|_| true)?;
-            errors.push(crate::eval::relmse(crate::eval::rgb(&out.color), crate::eval::rgb(&f.reference)));
-        }
+        let mut errors = self.relmse(self.data.validation.iter().map(|f| (&f.features, &f.reference)))?;
         let mean = errors.iter().sum::<f64>() / errors.len() as f64;
         errors.sort_by(f64::total_cmp);
         let n = errors.len();
         let median = if n % 2 == 1 { errors[n / 2] } else { (errors[n / 2 - 1] + errors[n / 2]) / 2.0 };
         Ok(Some(Validation { mean, median }))
+    }
+
+    /// Geometric mean relMSE of a check set's denoised frames (None when it is empty): how
+    /// the Cycles dev set's table (`benches/quality_cycles.sh`) summarises.
+    pub fn check(&self, set: &data::CheckSet) -> Result<Option<f64>, TrainError> {
+        if set.frames.is_empty() {
+            return Ok(None);
+        }
+        let errors = self.relmse(set.frames.iter().map(|f| (&f.features, &f.reference)))?;
+        Ok(Some((errors.iter().map(|e| e.max(1e-12).ln()).sum::<f64>() / errors.len() as f64).exp()))
+    }
+
+    /// relMSE of each frame denoised by the current weights against its reference.
+    fn relmse<'f>(
+        &self,
+        frames: impl Iterator<Item = (&'f crate::features::Features, &'f [Vec<f32>; 3])>,
+    ) -> Result<Vec<f64>, TrainError> {
+        let model = self.model.snapshot("validation")?;
+        let d = crate::denoise::Denoiser::new(model, crate::denoise::Options::default())?;
+        frames
+            .map(|(features, reference)| {
+                let out = d.denoise_features(features, &|_| true)?;
+                Ok(crate::eval::relmse(crate::eval::rgb(&out.color), crate::eval::rgb(reference)))
+            })
+            .collect()
     }
 
     /// The options.

@@ -100,8 +100,7 @@ pub fn read_manifest(path: &Path) -> Result<Vec<ManifestRow>, CsvError> {
 }
 
 /// Columns of `log.csv`; new columns go at the end so older readers keep working.
-pub const LOG_HEADER: &str =
-    "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second,validation_median_relmse";
+pub const LOG_HEADER: &str = "step,phase,loss_diffuse,loss_specular,loss_combined,validation_relmse,patches_per_second,validation_median_relmse,dev_relmse_geomean";
 
 /// One line of the training log.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -122,6 +121,9 @@ pub struct LogRow {
     pub validation_median_relmse: Option<f64>,
     /// Training throughput.
     pub patches_per_second: f64,
+    /// Geometric mean relMSE over the frames of `kpcn train --dev` (a check set never
+    /// trained on), when validated this step with one.
+    pub dev_relmse: Option<f64>,
 }
 
 impl LogRow {
@@ -130,7 +132,7 @@ impl LogRow {
         let loss = |v: f64| if v.is_nan() { String::new() } else { format!("{v:.6}") };
         let opt = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
         format!(
-            "{},{},{},{},{},{},{:.3},{}",
+            "{},{},{},{},{},{},{:.3},{},{}",
             self.step,
             self.phase,
             loss(self.loss_diffuse),
@@ -138,7 +140,8 @@ impl LogRow {
             loss(self.loss_combined),
             opt(self.validation_relmse),
             self.patches_per_second,
-            opt(self.validation_median_relmse)
+            opt(self.validation_median_relmse),
+            opt(self.dev_relmse)
         )
     }
 
@@ -156,6 +159,7 @@ impl LogRow {
             validation_relmse: num(5),
             patches_per_second: num(6).unwrap_or(0.0),
             validation_median_relmse: num(7),
+            dev_relmse: num(8),
         })
     }
 }
@@ -203,9 +207,11 @@ mod tests {
             validation_relmse: Some(0.0125),
             validation_median_relmse: None,
             patches_per_second: 40.5,
+            dev_relmse: Some(0.03),
         };
         let back = LogRow::parse(&l.to_line()).unwrap();
         assert_eq!((back.step, back.loss_diffuse, back.validation_relmse), (7, 0.5, Some(0.0125)));
+        assert_eq!(back.dev_relmse, Some(0.03));
         assert!(back.loss_combined.is_nan() && back.validation_median_relmse.is_none());
         // A log from before the median column.
         assert_eq!(LogRow::parse("3,2,,,0.1,,12.0").unwrap().loss_combined, 0.1);
