@@ -13,7 +13,7 @@
 #                                         # files without variances get (Blender's): runs
 #                                         # go to WORK/RUNG-spatial
 #
-# Then: cp WORK/RUNG/model.safetensors models/RUNG.safetensors
+# Then: kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors  (f16 weights)
 # (models/balanced-spatial.safetensors: KPCN_VARIANCES=spatial scripts/train-ladder.sh balanced)
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail

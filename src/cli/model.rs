@@ -22,6 +22,15 @@ pub enum ModelAction {
         #[arg(default_value = "default")]
         model: String,
     },
+    /// Rewrite a model with its weights in half precision (f16): half the file, for
+    /// shipping (the ladder's models/*.safetensors); outputs change by f16 rounding only.
+    Half {
+        /// Model name or file.
+        model: String,
+        /// Output file (.safetensors).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Write an untrained, Xavier-initialised model of a preset architecture.
     Init {
         /// Architecture.
@@ -142,6 +151,11 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
             let m = Model::resolve(model)?;
             println!("{model}");
             describe(&m);
+        }
+        ModelAction::Half { model, output } => {
+            let m = Model::resolve(model)?;
+            m.save_half(output).with_context(|| format!("{}: cannot write the model", output.display()))?;
+            println!("{}", output.display());
         }
         ModelAction::Init { preset, kind, seed, output } => {
             let m = Model::xavier(preset.architecture(*kind)?, *seed)?;

@@ -650,6 +650,21 @@ impl Model {
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         write_atomically(path, &self.to_bytes()?)
     }
+
+    /// Writes the model file with every weight rounded to half precision (f16): half the
+    /// bytes, for shipping. Loading widens the weights back to f32.
+    pub fn save_half(&self, path: &Path) -> Result<(), ModelError> {
+        let half = |b: &BranchWeights| -> Result<BranchWeights, ModelError> {
+            let layers = b
+                .layers
+                .iter()
+                .map(|(w, bias)| Ok((w.to_dtype(DType::F16)?, bias.to_dtype(DType::F16)?)))
+                .collect::<Result<_, ModelError>>()?;
+            Ok(BranchWeights { layers })
+        };
+        let m = Model { diffuse: half(&self.diffuse)?, specular: half(&self.specular)?, ..self.clone() };
+        write_atomically(path, &m.to_bytes()?)
+    }
 }
 
 /// Writes `bytes` to `path` through a temporary file renamed into place.
@@ -771,6 +786,25 @@ mod tests {
             let m = Model::resolve(q.name()).unwrap();
             assert_eq!(m.arch, Architecture::ladder(q), "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
+        }
+    }
+
+    #[test]
+    fn half_precision_files_load_as_f32_within_f16_rounding() {
+        let m = Model::xavier(Architecture::ladder(Quality::Fast), 3).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let (full, half) = (dir.path().join("full.safetensors"), dir.path().join("half.safetensors"));
+        m.save(&full).unwrap();
+        m.save_half(&half).unwrap();
+        let size = |p: &Path| std::fs::metadata(p).unwrap().len();
+        assert!(size(&half) * 10 < size(&full) * 6, "{} against {}", size(&half), size(&full));
+        let back = Model::load(&half).unwrap();
+        assert_eq!(back.arch, m.arch);
+        for (a, b) in m.diffuse.layers.iter().zip(&back.diffuse.layers) {
+            assert_eq!(b.0.dtype(), DType::F32);
+            let a = a.0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let b = b.0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-3 * x.abs().max(1e-4)), "rounded to f16");
         }
     }
 
