@@ -329,7 +329,6 @@ impl CheckSet {
                     .then(|| (name.clone(), dir.join(format!("{}-ref.exr", scene.0))))
             })
             .filter(|(_, reference)| reference.is_file())
-            .map(|(name, reference)| (name, reference))
             .collect();
         noisy.sort();
         if noisy.is_empty() {
