@@ -332,12 +332,6 @@ impl Architecture {
         }
     }
 
-    /// Estimated peak bytes to evaluate one branch on a `t`×`t` tile with its full halo.
-    pub fn tile_bytes(&self, t: usize) -> usize {
-        let p = t + 2 * self.feature_radius();
-        self.region_bytes(p, p, t, t)
-    }
-
     /// Estimated peak bytes to evaluate one branch on a `tw`×`th` tile whose region (the
     /// tile with its context) is `rw`×`rh`: the input region, the convolution's unfolded
     /// input (im2col), two activations, the logits and the noisy colour region
