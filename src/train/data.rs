@@ -135,6 +135,12 @@ pub enum DataError {
     Model(#[from] ModelError),
 }
 
+/// A reference's colour with NaN/Inf and extreme values made finite ([`sanitize`]): what
+/// relMSE and the phase-2 loss compare against.
+fn clean_colour(k: &KpcnInputs) -> [Vec<f32>; 3] {
+    std::array::from_fn(|c| k.color[c].iter().map(|&v| sanitize(v)).collect())
+}
+
 fn inputs(path: &Path) -> Result<KpcnInputs, DataError> {
     let fb = FrameBuffers::read(path)?;
     Ok(Mapping::for_frame(&fb, None).extract(&fb)?)
@@ -200,7 +206,7 @@ impl Frame {
             features: Features::new(noisy),
             target_d,
             target_s,
-            reference: std::array::from_fn(|c| reference.color[c].iter().map(|&v| sanitize(v)).collect()),
+            reference: clean_colour(reference),
             importance_centres,
             uniform_centres,
         }
@@ -342,8 +348,7 @@ impl CheckSet {
                     n.estimate_variances_spatially();
                 }
                 let r = inputs(&reference)?;
-                let reference = std::array::from_fn(|c| r.color[c].iter().map(|&v| sanitize(v)).collect());
-                Ok(CheckFrame { name, features: Features::new(&n), reference })
+                Ok(CheckFrame { name, features: Features::new(&n), reference: clean_colour(&r) })
             })
             .collect::<Result<_, DataError>>()?;
         Ok(CheckSet { frames })
