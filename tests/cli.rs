@@ -174,11 +174,11 @@ fn render_reads_scene_files_and_explains_their_errors() {
 }
 
 #[test]
-fn scenes_lists_eight_families_and_dataset_writes_a_manifest() {
+fn scenes_lists_every_family_and_dataset_writes_and_extends_a_manifest() {
     let out = kpcn(&["scenes"]);
     assert!(out.status.success());
     let listed = text(&out.stdout).lines().filter(|l| l.contains("effects of seed 0")).count();
-    assert_eq!(listed, 8, "{}", text(&out.stdout));
+    assert_eq!(listed, kpcn::sim::families::FAMILIES.len(), "{}", text(&out.stdout));
 
     let dir = tempfile::tempdir().unwrap();
     let out = kpcn(&[
@@ -206,6 +206,38 @@ fn scenes_lists_eight_families_and_dataset_writes_a_manifest() {
         assert!(dir.path().join(cols[5]).is_file(), "{row}");
         assert!(dir.path().join(cols[6]).is_file(), "{row}");
     }
+
+    // Rerun with one more seed and another family: the listed scenes are kept, not
+    // re-rendered (their files keep their times), a lost scene is rendered again.
+    let kept = dir.path().join("glass-0000/glass-0000-00002spp.exr");
+    let stamp = std::fs::metadata(&kept).unwrap().modified().unwrap();
+    std::fs::remove_file(dir.path().join("dof-0001/dof-0001-00004spp.exr")).unwrap();
+    let out = kpcn(&[
+        "dataset",
+        "--families",
+        "glass,dof,cornell",
+        "--count",
+        "3",
+        "--spp",
+        "2,4",
+        "--reference-spp",
+        "8",
+        "--resolution",
+        "16x9",
+        "-q",
+        "-o",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("3 scenes already in"), "{}", text(&out.stdout));
+    assert_eq!(std::fs::metadata(&kept).unwrap().modified().unwrap(), stamp, "kept, not rendered again");
+    assert!(dir.path().join("dof-0001/dof-0001-00004spp.exr").is_file(), "the lost frame is back");
+    let manifest = std::fs::read_to_string(dir.path().join("manifest.csv")).unwrap();
+    assert_eq!(manifest.lines().count(), 1 + 3 * 3 * 2, "{manifest}");
+    let mut lines: Vec<&str> = manifest.lines().skip(1).collect();
+    lines.sort_unstable();
+    lines.dedup();
+    assert_eq!(lines.len(), 18, "no scene listed twice");
 }
 
 /// `--model auto` (the default) runs `default` on a file with per-pixel variances and

@@ -2,6 +2,7 @@
 
 use kpcn::io::FrameBuffers;
 use kpcn::sim::integrator::Counters;
+use kpcn::sim::rng::Sampler;
 use kpcn::sim::scene::{Effect, SceneDesc, SceneError};
 use kpcn::sim::{RenderOptions, render};
 
@@ -10,7 +11,7 @@ fn scene(toml: &str) -> SceneDesc {
 }
 
 fn opts(w: usize, h: usize, spp: &[u32], seed: u64) -> RenderOptions {
-    RenderOptions { width: w, height: h, checkpoints: spp.to_vec(), sample_seed: seed, nee: true }
+    RenderOptions::new(w, h, spp.to_vec(), seed)
 }
 
 fn run(desc: &SceneDesc, o: &RenderOptions) -> (Vec<FrameBuffers>, Counters) {
@@ -183,6 +184,49 @@ fn written_variance_is_unbiased_across_independent_seeds() {
     // Relative standard deviation of a variance estimate from K samples, over P pixels.
     let tol = 5.0 * (2.0 / ((k - 1) as f64 * (w * h) as f64)).sqrt();
     assert!((ratio - 1.0).abs() < tol, "empirical / written = {ratio:.3}, tolerance {tol:.3}");
+}
+
+/// Per-pixel variance across independent seeds, and the pooled mean, of `o` on BASE.
+fn spread_across_seeds(o: impl Fn(u64) -> RenderOptions, k: u64) -> (f64, f64, f64) {
+    let d = scene(BASE);
+    let frames: Vec<FrameBuffers> = (0..k).map(|s| run(&d, &o(200 + s)).0.remove(0)).collect();
+    let p = frames[0].width() * frames[0].height();
+    let (mut var, mut sum, mut written) = (0f64, 0f64, 0f64);
+    for i in 0..p {
+        let xs: Vec<f64> = frames.iter().map(|f| f.channel("G").unwrap()[i] as f64).collect();
+        let m = xs.iter().sum::<f64>() / k as f64;
+        var += xs.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (k - 1) as f64;
+        sum += m;
+        written += frames.iter().map(|f| f.channel("colorVariance.Z").unwrap()[i] as f64).sum::<f64>() / k as f64;
+    }
+    (var / p as f64, sum / p as f64, written / p as f64)
+}
+
+#[test]
+fn sobol_sampler_is_unbiased_and_less_noisy_than_random_at_equal_spp() {
+    let sobol = |seed| RenderOptions { sampler: Sampler::Sobol, ..opts(8, 6, &[16], seed) };
+    let (v_random, m_random, _) = spread_across_seeds(|seed| opts(8, 6, &[16], seed), 32);
+    let (v_sobol, m_sobol, written) = spread_across_seeds(sobol, 32);
+    assert!(v_sobol < 0.8 * v_random, "variance sobol {v_sobol:.3e} vs random {v_random:.3e}");
+    // Same expectation: the pooled means agree within 5 standard errors.
+    let se = ((v_random + v_sobol) / (32.0 * 48.0)).sqrt();
+    assert!((m_sobol - m_random).abs() < 5.0 * se, "means {m_sobol} vs {m_random}, se {se}");
+    // The per-pixel estimate treats stratified samples as independent: it over-states.
+    assert!(written >= v_sobol, "written {written:.3e} understates the true {v_sobol:.3e}");
+}
+
+#[test]
+fn production_sampling_is_recorded_and_box_random_is_the_original_sampling() {
+    let d = scene(BASE);
+    let dir = tempfile::tempdir().unwrap();
+    let o = RenderOptions::production(8, 6, vec![4], 1);
+    let w = kpcn::sim::render_to_dir(&d, &o, None, dir.path(), &Default::default(), &|_| {}).unwrap();
+    let f = FrameBuffers::read(&w.noisy[0].1).unwrap();
+    assert_eq!(f.attribute("kpcn:pixel_filter"), Some("blackman-harris:1.5"));
+    assert_eq!(f.attribute("kpcn:sampler"), Some("sobol"));
+    // The wide filter and the other sample placement give a different frame.
+    let boxed = run(&d, &opts(8, 6, &[4], 1)).0.remove(0);
+    assert_ne!(f.channel("G").unwrap(), boxed.channel("G").unwrap());
 }
 
 #[test]

@@ -1,9 +1,9 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
-use kpcn::features::Branch;
+use kpcn::features::{Branch, Orientation};
 use kpcn::model::{Architecture, Design, Kind, Model};
-use kpcn::train::data::{Dataset, batch};
-use kpcn::train::{TrainOptions, Trainer, l1};
+use kpcn::train::data::{Dataset, batch, batch_oriented};
+use kpcn::train::{Loss, TrainOptions, Trainer, l1};
 use std::path::Path;
 use std::process::Command;
 
@@ -47,6 +47,8 @@ fn options(steps: u64) -> TrainOptions {
         ops: Default::default(),
         // The schedule is a function of the step: resuming must follow it exactly.
         cosine: true,
+        loss: Default::default(),
+        augment: false,
     }
 }
 
@@ -106,18 +108,19 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
     assert!(v.mean.is_finite() && v.median.is_finite() && v.median <= 2.0 * v.mean + 1e-12, "{v:?}");
 
     // 4 + 2 steps straight through equal 3 steps, a checkpoint, a resume and 3 more
-    // (phase 2 included).
-    let mut straight = Trainer::new(&tiny(), &data, options(4)).unwrap();
+    // (phase 2 included), with the relative loss and augmentation.
+    let opts = || TrainOptions { loss: Loss::Relative, augment: true, ..options(4) };
+    let mut straight = Trainer::new(&tiny(), &data, opts()).unwrap();
     while !straight.finished() {
         straight.train_step().unwrap();
     }
     let ckpt = dir.path().join("ckpt.safetensors");
-    let mut first = Trainer::new(&tiny(), &data, options(4)).unwrap();
+    let mut first = Trainer::new(&tiny(), &data, opts()).unwrap();
     for _ in 0..3 {
         first.train_step().unwrap();
     }
     first.save(&ckpt).unwrap();
-    let mut resumed = Trainer::resume(&ckpt, &data, options(4)).unwrap();
+    let mut resumed = Trainer::resume(&ckpt, &data, opts()).unwrap();
     assert_eq!(resumed.step, 3);
     while !resumed.finished() {
         resumed.train_step().unwrap();
@@ -127,6 +130,41 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
     assert!(a == b, "resumed weights differ");
     // A checkpoint is also a loadable model.
     Model::load(&ckpt).unwrap();
+}
+
+#[test]
+fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let frames: Vec<_> = data.train.iter().take(2).collect();
+    let origins = vec![(4, 4), (6, 2)];
+    let arch = tiny().arch;
+    let (p, rk) = (8, arch.train_margins().1);
+    let o = [Orientation::from_index(5), Orientation::from_index(2)];
+    for b in [Branch::Diffuse, Branch::Specular] {
+        let plain = batch(&frames, &origins, p, &arch, b).unwrap();
+        let turned = batch_oriented(&frames, &origins, &o, p, &arch, b).unwrap();
+        let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        for (a, t, side) in [
+            (&plain.target, &turned.target, p),
+            (&plain.albedo, &turned.albedo, p),
+            (&plain.reference, &turned.reference, p),
+            (&plain.noisy, &turned.noisy, p + 2 * rk),
+        ] {
+            let (a, t) = (v(a), v(t));
+            let half = a.len() / 2;
+            assert_eq!(o[0].apply(&a[..half], side), t[..half]);
+            assert_eq!(o[1].apply(&a[half..], side), t[half..]);
+        }
+        // The colour planes of the input are oriented alike (gradients are re-taken:
+        // `features` tests them against a mirrored frame).
+        let (a, t) = (v(&plain.input), v(&turned.input));
+        let n = a.len() / 2 / 27;
+        let side = (n as f64).sqrt() as usize;
+        assert_eq!(o[0].apply(&a[..3 * n], side), t[..3 * n]);
+        assert_ne!(a, t);
+    }
 }
 
 #[test]

@@ -71,6 +71,15 @@ pub enum Command {
     Scenes(render::ScenesArgs),
     /// Render a training/test set: N permutations of each family, noisy frames and
     /// references, with a manifest.csv.
+    ///
+    /// Rerunning into the same folder resumes an interrupted run (scenes already listed
+    /// with the same --spp and --sample-seed are kept) and extends a dataset with more
+    /// families or seeds. Frames are sampled as Cycles does by default (Blackman-Harris
+    /// pixel filter, Sobol' points); `--pixel-filter box --sampler random` gives the
+    /// simulator's original sampling.
+    #[command(
+        after_help = "Examples:\n  kpcn dataset --count 10 --spp 2,4,16,64 --reference-spp 512 -o data/\n  kpcn dataset --families slit --count 10 --spp 2,4,16,64 --reference-spp 512 -o data/   # adds a family"
+    )]
     Dataset(render::DatasetArgs),
     /// Train KPCN/DPCN weights on a `kpcn dataset` folder: importance-sampled patches, phase 1
     /// (each branch, L1 in its own domain), phase 2 (recomposed colour); checkpoints resume

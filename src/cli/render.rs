@@ -2,9 +2,11 @@
 
 use crate::io::WriteOptions;
 use crate::sim::families::{FAMILIES, generate};
+use crate::sim::film::PixelFilter;
+use crate::sim::rng::Sampler;
 use crate::sim::scene::SceneDesc;
 use crate::sim::{RenderOptions, Written, render_to_dir};
-use crate::train::records::{ManifestRow, write_manifest};
+use crate::train::records::{ManifestRow, read_manifest, write_manifest};
 use anyhow::{Context, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -26,6 +28,14 @@ pub struct SamplingArgs {
     /// Monte Carlo random stream: render one permutation independently many times.
     #[arg(long, default_value_t = 0, value_name = "S")]
     pub sample_seed: u64,
+    /// Pixel filter, sampled by importance as Cycles does: `blackman-harris` (Cycles'
+    /// default, ±1.5 px), `blackman-harris:WIDTH`, or `box` (uniform over the pixel).
+    #[arg(long, default_value = "blackman-harris", value_parser = PixelFilter::parse, value_name = "FILTER")]
+    pub pixel_filter: PixelFilter,
+    /// Sample placement: `sobol` (scrambled low-discrepancy points, like production
+    /// renderers) or `random` (independent samples).
+    #[arg(long, default_value = "sobol", value_parser = parse_sampler, value_name = "SAMPLER")]
+    pub sampler: Sampler,
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
@@ -89,6 +99,14 @@ pub struct DatasetArgs {
     pub sampling: SamplingArgs,
 }
 
+/// A clap parser for `--sampler`.
+fn parse_sampler(s: &str) -> Result<Sampler, String> {
+    [Sampler::Sobol, Sampler::Random]
+        .into_iter()
+        .find(|k| k.name() == s)
+        .ok_or_else(|| format!("sampler `{s}`: use sobol or random"))
+}
+
 /// A clap parser for `WxH`.
 pub(super) fn parse_resolution(s: &str) -> Result<(usize, usize), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("`{s}` is not WxH, e.g. 320x180"))?;
@@ -108,11 +126,9 @@ impl SamplingArgs {
             bail!("--reference-spp must be at least 2");
         }
         Ok(RenderOptions {
-            width: self.resolution.0,
-            height: self.resolution.1,
-            checkpoints: self.spp.clone(),
-            sample_seed: self.sample_seed,
-            nee: true,
+            filter: self.pixel_filter,
+            sampler: self.sampler,
+            ..RenderOptions::new(self.resolution.0, self.resolution.1, self.spp.clone(), self.sample_seed)
         })
     }
 
@@ -212,13 +228,39 @@ pub fn run_dataset(args: &DatasetArgs) -> anyhow::Result<()> {
         args.families.iter().map(String::as_str).collect()
     };
     let manifest_path = args.output.join("manifest.csv");
-    let mut rows: Vec<ManifestRow> = Vec::new();
+    // An existing manifest is extended: its scenes stay listed, and a scene already there
+    // with the same sample counts, sample seed and files on disk is not rendered again, so
+    // an interrupted run resumes and a dataset grows family by family.
+    let mut rows: Vec<ManifestRow> = if manifest_path.is_file() {
+        read_manifest(&manifest_path).with_context(|| {
+            format!("{}: cannot extend this dataset (move it away to start afresh)", manifest_path.display())
+        })?
+    } else {
+        Vec::new()
+    };
+    let mut wanted = args.sampling.spp.clone();
+    wanted.sort_unstable();
     let t = std::time::Instant::now();
+    let (mut rendered, mut kept) = (0usize, 0usize);
     for f in &families {
         for seed in args.first_seed..args.first_seed + args.count {
             let desc = family(f, seed)?;
+            let listed: Vec<&ManifestRow> = rows.iter().filter(|r| r.scene == desc.name).collect();
+            let mut spps: Vec<u32> = listed.iter().map(|r| r.spp).collect();
+            spps.sort_unstable();
+            let complete = spps == wanted
+                && listed.iter().all(|r| {
+                    r.sample_seed == args.sampling.sample_seed
+                        && args.output.join(&r.file).is_file()
+                        && (args.sampling.reference_spp.is_none() || args.output.join(&r.reference).is_file())
+                });
+            if complete {
+                kept += 1;
+                continue;
+            }
             let dir = args.output.join(&desc.name);
             let w = args.sampling.render(&desc, &dir)?;
+            rows.retain(|r| r.scene != desc.name);
             let rel = |p: &Path| p.strip_prefix(&args.output).unwrap_or(p).display().to_string();
             let reference = w.reference.as_deref().map(rel).unwrap_or_default();
             for (spp, p) in &w.noisy {
@@ -233,16 +275,19 @@ pub fn run_dataset(args: &DatasetArgs) -> anyhow::Result<()> {
                     render_seconds: w.noisy_seconds,
                 });
             }
+            rendered += 1;
             // Rewritten after every scene, so an interrupted run keeps a valid manifest.
             write_manifest(&manifest_path, &rows)?;
         }
     }
+    if kept > 0 {
+        println!("{kept} scenes already in {} with these settings: kept", manifest_path.display());
+    }
     println!(
-        "{} scenes, {} frames in {:.1} s; manifest {}",
-        families.len() as u64 * args.count,
-        rows.len(),
+        "{rendered} scenes rendered in {:.1} s; manifest {} lists {} frames",
         t.elapsed().as_secs_f64(),
-        manifest_path.display()
+        manifest_path.display(),
+        rows.len()
     );
     Ok(())
 }

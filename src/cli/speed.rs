@@ -74,7 +74,7 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
             "frame", "threads", "method", "kFLOP/px", "seconds", "MPix/s", "× OIDN"
         );
         for &(w, h) in &args.resolution {
-            let opts = RenderOptions { width: w, height: h, checkpoints: vec![16], sample_seed: 1, nee: true };
+            let opts = RenderOptions::new(w, h, vec![16], 1);
             let written = render_to_dir(&desc, &opts, None, &dir, &WriteOptions::default(), &|_| {})?;
             let fb = FrameBuffers::read(&written.noisy[0].1)?;
             let k = Mapping::for_frame(&fb, None).extract(&fb)?;

@@ -218,7 +218,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
         let mut reference: Option<KpcnInputs> = None;
         for (i, &spp) in spps.iter().enumerate() {
             bar.set_message(format!("{} {spp} spp", desc.name));
-            let opts = RenderOptions { width: w, height: h, checkpoints: vec![spp], sample_seed: args.seed, nee: true };
+            let opts = RenderOptions::new(w, h, vec![spp], args.seed);
             let written = pool.install(|| {
                 render_to_dir(
                     &desc,

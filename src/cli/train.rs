@@ -5,7 +5,7 @@ use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
 use crate::model::{Clamp, Model, Specular, Variances};
 use crate::train::data::{CheckSet, Dataset};
-use crate::train::{CHECKPOINT, LogRow, TrainOptions, Trainer};
+use crate::train::{CHECKPOINT, LogRow, Loss, TrainOptions, Trainer};
 use crate::train::{curves, records};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -72,6 +72,15 @@ pub struct TrainArgs {
     /// --resume.
     #[arg(long, value_enum, default_value_t = Schedule::Constant)]
     pub schedule: Schedule,
+    /// Loss: `l1` (Bako et al.: L1 on each branch's transformed target, then on the colour)
+    /// or `relative` (relMSE with the prediction as its denominator, which seeks the mean
+    /// and so keeps brightness, plus L1 on tonemapped radiance). Give it again with --resume.
+    #[arg(long, value_enum, default_value_t = LossArg::L1)]
+    pub loss: LossArg,
+    /// Show each patch mirrored and/or transposed at random (8 orientations), so the
+    /// network learns from 8 times the content. Give it again with --resume.
+    #[arg(long)]
+    pub augment: bool,
     /// Seed of initialisation and patch sampling: a run is reproducible from it.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -132,6 +141,15 @@ fn plot(dir: &Path, bar: &ProgressBar) {
     if let Err(e) = write_png(&chart, &dir.join("training.png"), 900, 540) {
         WARNED.call_once(|| bar.suspend(|| eprintln!("kpcn train: warning: no training.png: {e}")));
     }
+}
+
+/// `--loss` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LossArg {
+    /// L1 in each branch's domain, then on the colour.
+    L1,
+    /// Relative L2 (mean-seeking) plus tonemapped L1.
+    Relative,
 }
 
 /// `--schedule` values.
@@ -195,6 +213,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         validate_every: args.validate_every.max(1),
         ops: if args.stock_candle { Ops::StockCandle } else { Ops::Kpcn },
         cosine: args.schedule == Schedule::Cosine,
+        loss: match args.loss {
+            LossArg::L1 => Loss::L1,
+            LossArg::Relative => Loss::Relative,
+        },
+        augment: args.augment,
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -315,7 +338,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     }
     let a = trainer.model.base.arch;
     let description = format!(
-        "trained by kpcn train: {:?} {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{} {:?}, seed {}, {} patches; data {} ({} frames, {} held out)",
+        "trained by kpcn train: {:?} {:?} {}x{}ch {}x{} conv {}x{} kernels; {} + {} steps, batch {}, patch {}, lr {}/{} {:?}, loss {:?}{}, seed {}, {} patches; data {} ({} frames, {} held out)",
         a.design,
         a.kind,
         a.layers,
@@ -331,6 +354,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         args.lr,
         args.lr_phase2,
         args.schedule,
+        args.loss,
+        if args.augment { ", augmented" } else { "" },
         args.seed,
         if opts.importance { "importance" } else { "uniform" },
         args.data.display(),

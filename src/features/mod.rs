@@ -27,6 +27,46 @@ pub enum Branch {
     Specular,
 }
 
+/// One of the square's eight symmetries (mirrors and transposition), for training
+/// augmentation: a mirrored or transposed render is as plausible as the render itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Orientation {
+    /// Mirrored left to right.
+    pub flip_x: bool,
+    /// Mirrored top to bottom.
+    pub flip_y: bool,
+    /// Rows and columns exchanged (before the mirrors).
+    pub transpose: bool,
+}
+
+impl Orientation {
+    /// Symmetry `i` of the eight (bits: mirror x, mirror y, transpose); 0 is the identity.
+    pub fn from_index(i: u64) -> Orientation {
+        Orientation { flip_x: i & 1 != 0, flip_y: i & 2 != 0, transpose: i & 4 != 0 }
+    }
+
+    /// CHW planes of `side`² squares, oriented.
+    pub fn apply(self, planes: &[f32], side: usize) -> Vec<f32> {
+        let n = side * side;
+        let mut out = Vec::with_capacity(planes.len());
+        for plane in planes.chunks_exact(n) {
+            for v in 0..side {
+                for u in 0..side {
+                    let (mut x, mut y) = if self.transpose { (v, u) } else { (u, v) };
+                    if self.flip_x {
+                        x = side - 1 - x;
+                    }
+                    if self.flip_y {
+                        y = side - 1 - y;
+                    }
+                    out.push(plane[y * side + x]);
+                }
+            }
+        }
+        out
+    }
+}
+
 /// A frame's preprocessed buffers (whole frame, sanitised), from which branch inputs of any
 /// region are extracted. Gradients are computed on demand from whole-frame values, so a
 /// tile's input equals the same region of the untiled input exactly.
@@ -261,10 +301,10 @@ impl Features {
         out
     }
 
-    /// The 27-channel input of branch `b` over a region (CHW, reflected past the frame).
-    pub fn branch_input(&self, b: Branch, x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
+    /// The 10 planes whose gradients are inputs: c̃, normal, albedo, depth.
+    fn guides(&self, b: Branch) -> [&[f32]; 10] {
         let c = self.colour(b);
-        let guides: [&[f32]; 10] = [
+        [
             &c[0],
             &c[1],
             &c[2],
@@ -275,12 +315,52 @@ impl Features {
             &self.albedo[1],
             &self.albedo[2],
             &self.depth,
-        ];
+        ]
+    }
+
+    /// The 4 variance planes of branch `b`'s input.
+    fn variances(&self, b: Branch) -> [&[f32]; 4] {
         let var = match b {
             Branch::Diffuse => &self.d_variance,
             Branch::Specular => &self.s_variance,
         };
-        let variances: [&[f32]; 4] = [var, &self.normal_variance, &self.albedo_variance, &self.depth_variance];
+        [var, &self.normal_variance, &self.albedo_variance, &self.depth_variance]
+    }
+
+    /// The input of branch `b` over the `side`² square at (`x0`, `y0`) as the network
+    /// would see it in a mirrored or transposed frame (training augmentation): the planes
+    /// are oriented first and the gradients taken afterwards, along the oriented axes.
+    /// The identity orientation is [`Features::branch_input`] exactly. (Normals keep their
+    /// components; the network sees only their gradients.)
+    pub fn branch_input_oriented(&self, b: Branch, x0: isize, y0: isize, side: usize, o: Orientation) -> Vec<f32> {
+        if o == Orientation::default() {
+            return self.branch_input(b, x0, y0, side, side);
+        }
+        // One pixel of margin on every side, for the backward differences of the border.
+        let m = side + 2;
+        let g = o.apply(&self.region(&self.guides(b), x0 - 1, y0 - 1, m, m), m);
+        let at = |k: usize, x: usize, y: usize| g[(k * m + y) * m + x];
+        let mut out = Vec::with_capacity(INPUT_CHANNELS * side * side);
+        let square = |out: &mut Vec<f32>, f: &dyn Fn(usize, usize) -> f32| {
+            (0..side).for_each(|y| (0..side).for_each(|x| out.push(f(x + 1, y + 1))));
+        };
+        for k in 0..3 {
+            square(&mut out, &|x, y| at(k, x, y));
+        }
+        for k in 0..10 {
+            square(&mut out, &|x, y| sanitize(at(k, x, y) - at(k, x - 1, y)));
+        }
+        for k in 0..10 {
+            square(&mut out, &|x, y| sanitize(at(k, x, y) - at(k, x, y - 1)));
+        }
+        out.extend(o.apply(&self.region(&self.variances(b), x0, y0, side, side), side));
+        out
+    }
+
+    /// The 27-channel input of branch `b` over a region (CHW, reflected past the frame).
+    pub fn branch_input(&self, b: Branch, x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
+        let guides = self.guides(b);
+        let variances = self.variances(b);
         let fw = self.width;
         let out = self.rows(INPUT_CHANNELS, x0, y0, w, h, |i, fy, xs, row| match i {
             0..3 => row.iter_mut().zip(xs).for_each(|(v, &x)| *v = guides[i][fy * fw + x]),
@@ -318,6 +398,54 @@ mod tests {
             normal_variance: p(0.002),
             depth_variance: p(0.5),
         }
+    }
+
+    /// `k` with every plane mirrored left to right.
+    fn mirrored(k: &KpcnInputs) -> KpcnInputs {
+        let (w, h) = (k.width, k.height);
+        let m = |p: &Vec<f32>| (0..w * h).map(|i| p[(i / w) * w + (w - 1 - i % w)]).collect::<Vec<f32>>();
+        let m3 = |p: &[Vec<f32>; 3]| [m(&p[0]), m(&p[1]), m(&p[2])];
+        KpcnInputs {
+            width: w,
+            height: h,
+            color: m3(&k.color),
+            diffuse: m3(&k.diffuse),
+            specular: m3(&k.specular),
+            albedo: m3(&k.albedo),
+            normal: m3(&k.normal),
+            depth: m(&k.depth),
+            visibility: None,
+            color_variance: m(&k.color_variance),
+            diffuse_variance: m(&k.diffuse_variance),
+            specular_variance: m(&k.specular_variance),
+            albedo_variance: m(&k.albedo_variance),
+            normal_variance: m(&k.normal_variance),
+            depth_variance: m(&k.depth_variance),
+        }
+    }
+
+    #[test]
+    fn oriented_input_is_the_input_of_the_mirrored_frame() {
+        let k = inputs(20, 16, |i| ((i * 7919) % 97) as f32 / 50.0);
+        let (f, fm) = (Features::new(&k), Features::new(&mirrored(&k)));
+        let (x0, y0, side) = (4, 5, 8);
+        for b in [Branch::Diffuse, Branch::Specular] {
+            let o = Orientation { flip_x: true, ..Default::default() };
+            let got = f.branch_input_oriented(b, x0, y0, side, o);
+            let want = fm.branch_input(b, 20 - x0 - side as isize, y0, side, side);
+            assert_eq!(got, want, "{b:?}");
+            let id = f.branch_input_oriented(b, x0, y0, side, Orientation::default());
+            assert_eq!(id, f.branch_input(b, x0, y0, side, side));
+        }
+        // Transposing twice, or mirroring twice, is the identity; the eight are distinct.
+        let sq: Vec<f32> = (0..9).map(|v| v as f32).collect();
+        let all: Vec<Vec<f32>> = (0..8).map(|i| Orientation::from_index(i).apply(&sq, 3)).collect();
+        for (i, a) in all.iter().enumerate() {
+            assert!(all[..i].iter().all(|b| b != a), "symmetry {i} repeats");
+        }
+        let t = Orientation { transpose: true, ..Default::default() };
+        assert_eq!(t.apply(&t.apply(&sq, 3), 3), sq);
+        assert_eq!(all[4], [0.0, 3.0, 6.0, 1.0, 4.0, 7.0, 2.0, 5.0, 8.0]);
     }
 
     #[test]

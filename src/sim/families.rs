@@ -10,7 +10,7 @@ use super::scene::{
 use super::texture::{Pattern, Texture};
 
 /// (name, description) of every family.
-pub const FAMILIES: [(&str, &str); 8] = [
+pub const FAMILIES: [(&str, &str); 9] = [
     ("cornell", "Cornell-style box: coloured walls, ceiling light, blocks and a sphere"),
     ("interior", "room lit by sky and sun through a window, textured floor, table"),
     ("courtyard", "outdoor courtyard under a sky with a sun, textured ground, buildings"),
@@ -19,6 +19,7 @@ pub const FAMILIES: [(&str, &str); 8] = [
     ("dof", "still life at several depths through a thin lens"),
     ("firefly", "dark room lit by a small bright light and a spot: caustics and fireflies"),
     ("corridor", "long corridor with striped, wood and marble walls lit by spots"),
+    ("slit", "closed room lit only by sky and sun through a narrow slit: sparse indirect light"),
 ];
 
 /// Generates permutation `seed` of family `name`; `None` for an unknown family.
@@ -33,6 +34,7 @@ pub fn generate(name: &str, seed: u64) -> Option<SceneDesc> {
         "glass" => glass(&mut b),
         "dof" => dof(&mut b),
         "firefly" => firefly(&mut b),
+        "slit" => slit(&mut b),
         _ => corridor(&mut b),
     }
     Some(b.d)
@@ -163,6 +165,23 @@ impl Builder {
         self.d.environment = Some(EnvDesc { kind: EnvType::Sky, color: [strength; 3], rotation, sun });
     }
 
+    /// The wall at depth `z` of a `w` × `h` room, built around a centred opening
+    /// `open_w` wide from height `y0` to `y1`.
+    fn wall_with_opening(&mut self, material: &str, z: f32, (w, h): (f32, f32), (open_w, y0, y1): (f32, f32, f32)) {
+        self.object(ShapeKind::Quad, material, [0.0, y0 / 2.0, z], [90.0, 0.0, 0.0], [w, 1.0, y0]);
+        self.object(ShapeKind::Quad, material, [0.0, (y1 + h) / 2.0, z], [90.0, 0.0, 0.0], [w, 1.0, h - y1]);
+        let side = (w - open_w) / 2.0;
+        for sx in [-1.0, 1.0] {
+            self.object(
+                ShapeKind::Quad,
+                material,
+                [sx * (open_w + side) / 2.0, (y0 + y1) / 2.0, z],
+                [90.0, 0.0, 0.0],
+                [side, 1.0, y1 - y0],
+            );
+        }
+    }
+
     fn constant_env(&mut self, c: f32) {
         self.effect(Effect::Environment);
         self.d.environment = Some(EnvDesc { kind: EnvType::Constant, color: [c; 3], rotation: 0.0, sun: None });
@@ -239,20 +258,7 @@ fn interior(b: &mut Builder) {
     b.object(ShapeKind::Quad, "wall", [-w / 2.0, h / 2.0, 0.0], [0.0, 0.0, -90.0], [h, 1.0, d]);
     b.object(ShapeKind::Quad, "wall", [w / 2.0, h / 2.0, 0.0], [0.0, 0.0, 90.0], [h, 1.0, d]);
     b.object(ShapeKind::Quad, "wall", [0.0, h / 2.0, d / 2.0], [-90.0, 0.0, 0.0], [w, 1.0, h]);
-    let z = -d / 2.0;
-    let (win_w, y0, y1) = (3.0, 0.9, 2.3);
-    b.object(ShapeKind::Quad, "wall", [0.0, y0 / 2.0, z], [90.0, 0.0, 0.0], [w, 1.0, y0]);
-    b.object(ShapeKind::Quad, "wall", [0.0, (y1 + h) / 2.0, z], [90.0, 0.0, 0.0], [w, 1.0, h - y1]);
-    let side = (w - win_w) / 2.0;
-    for sx in [-1.0, 1.0] {
-        b.object(
-            ShapeKind::Quad,
-            "wall",
-            [sx * (win_w + side) / 2.0, (y0 + y1) / 2.0, z],
-            [90.0, 0.0, 0.0],
-            [side, 1.0, y1 - y0],
-        );
-    }
+    b.wall_with_opening("wall", -d / 2.0, (w, h), (3.0, 0.9, 2.3));
     b.object(ShapeKind::Box, "wood", [0.3, 0.4, -1.0], [0.0, b.u(-20.0, 20.0), 0.0], [1.4, 0.8, 0.9]);
     b.object(ShapeKind::Sphere, "cloth", [0.3, 1.05, -1.0], [0.0; 3], [0.25; 3]);
     b.object(ShapeKind::Cylinder, "wood", [-1.5, 0.5, -0.5], [0.0; 3], [0.5, 1.0, 0.5]);
@@ -264,6 +270,40 @@ fn interior(b: &mut Builder) {
         env.rotation = 0.0;
     }
     b.camera([0.0, 1.5, 2.6], [0.0, 1.0, -3.0], 60.0, 0.6);
+}
+
+fn slit(b: &mut Builder) {
+    let wall = b.color([0.75, 0.72, 0.68], 0.2);
+    b.diffuse("wall", TextureDesc::Color(wall));
+    let floor = b.texture(&[Pattern::Wood, Pattern::Checker, Pattern::Noise], [0.6, 0.5, 0.4], [0.3, 0.25, 0.2]);
+    b.diffuse("floor", floor);
+    let pc = b.color([0.6, 0.25, 0.2], 0.5);
+    let pr = b.u(0.1, 0.4);
+    b.plastic("plastic", pc, pr);
+    let (w, h, d) = (5.0, 2.8, 5.0);
+    // A closed room but for a narrow slit, vertical or horizontal, in the far wall: all
+    // light comes through it, most of it after bounces (failure mode: sparse indirect light).
+    b.object(ShapeKind::Quad, "floor", [0.0, 0.0, 0.0], [0.0; 3], [w, 1.0, d]);
+    b.object(ShapeKind::Quad, "wall", [0.0, h, 0.0], [180.0, 0.0, 0.0], [w, 1.0, d]);
+    b.object(ShapeKind::Quad, "wall", [-w / 2.0, h / 2.0, 0.0], [0.0, 0.0, -90.0], [h, 1.0, d]);
+    b.object(ShapeKind::Quad, "wall", [w / 2.0, h / 2.0, 0.0], [0.0, 0.0, 90.0], [h, 1.0, d]);
+    b.object(ShapeKind::Quad, "wall", [0.0, h / 2.0, d / 2.0], [-90.0, 0.0, 0.0], [w, 1.0, h]);
+    let gap = b.u(0.08, 0.25);
+    let opening = if b.r() < 0.5 { (gap, 0.4, 2.4) } else { (b.u(1.5, 3.5), h - 0.4 - gap, h - 0.4) };
+    b.wall_with_opening("wall", -d / 2.0, (w, h), opening);
+    b.object(ShapeKind::Box, "wall", [b.u(-1.5, 1.5), 0.45, b.u(-1.5, 0.5)], [0.0, b.u(0.0, 90.0), 0.0], [0.9; 3]);
+    b.object(ShapeKind::Sphere, "plastic", [b.u(-1.5, 1.5), 0.4, b.u(-1.0, 1.0)], [0.0; 3], [0.4; 3]);
+    b.object(ShapeKind::Cylinder, "floor", [b.u(-2.0, 2.0), 0.6, b.u(-2.0, 0.0)], [0.0; 3], [0.3, 1.2, 0.3]);
+    // A strong sun: the patch it throws through the slit is the room's only bright light.
+    let (el, az) = (b.u(15.0, 40.0), b.u(250.0, 290.0));
+    let e = b.u(200.0, 600.0);
+    b.sky(b.u(0.5, 1.0), Some((el, az, e)));
+    // Keep the sun facing the slit (see `interior`).
+    if let Some(env) = b.d.environment.as_mut() {
+        env.rotation = 0.0;
+    }
+    let x = b.u(-1.0, 1.0);
+    b.camera([x, 1.5, 2.2], [-x, b.u(0.6, 1.2), -2.5], 65.0, 0.6);
 }
 
 fn courtyard(b: &mut Builder) {

@@ -169,8 +169,9 @@ pub fn trace(scene: &Scene, sx: f32, sy: f32, rng: &mut Rng, nee: bool, c: &mut 
             break;
         }
 
-        let u = [rng.uniform(), rng.uniform(), rng.uniform()];
-        let Some(s) = bsdf.sample(wo, u, &mut c.lobes) else { break };
+        // The direction's two numbers form one pair (stratified in 2D by the Sobol' sampler).
+        let [u0, u1] = rng.uniform2();
+        let Some(s) = bsdf.sample(wo, [u0, u1, rng.uniform()], &mut c.lobes) else { break };
         if depth == 0 {
             first = if s.pdf > 0.0 && matches!(bsdf, Bsdf::Plastic(..)) {
                 let f = bsdf.eval(wo, s.wi, &mut c.lobes);

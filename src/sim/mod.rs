@@ -40,6 +40,36 @@ pub struct RenderOptions {
     pub sample_seed: u64,
     /// Next-event estimation (off = brute-force path tracing, for tests).
     pub nee: bool,
+    /// Pixel filter.
+    pub filter: film::PixelFilter,
+    /// Sample placement.
+    pub sampler: rng::Sampler,
+}
+
+impl RenderOptions {
+    /// Options with next-event estimation, the box filter and independent random samples
+    /// (the simulator's original sampling, which tests of its statistics rely on).
+    pub fn new(width: usize, height: usize, checkpoints: Vec<u32>, sample_seed: u64) -> RenderOptions {
+        RenderOptions {
+            width,
+            height,
+            checkpoints,
+            sample_seed,
+            nee: true,
+            filter: film::PixelFilter::Box,
+            sampler: rng::Sampler::Random,
+        }
+    }
+
+    /// Like [`RenderOptions::new`], sampled as Cycles does by default: a Blackman–Harris
+    /// pixel filter 1.5 px wide and scrambled Sobol' points.
+    pub fn production(width: usize, height: usize, checkpoints: Vec<u32>, sample_seed: u64) -> RenderOptions {
+        RenderOptions {
+            filter: film::PixelFilter::Cycles,
+            sampler: rng::Sampler::Sobol,
+            ..RenderOptions::new(width, height, checkpoints, sample_seed)
+        }
+    }
 }
 
 /// Frames at each checkpoint and the work done.
@@ -61,6 +91,7 @@ pub fn render(
     let (w, h) = (opts.width, opts.height);
     let counts = film::snapshot_counts(&opts.checkpoints);
     let max_spp = *opts.checkpoints.iter().max().unwrap_or(&1);
+    let filter = opts.filter.sampler();
     let tiles: Vec<(usize, usize)> =
         (0..h.div_ceil(TILE)).flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE))).collect();
     let results: Vec<(TilePixels, Counters)> = tiles
@@ -74,8 +105,9 @@ pub fn render(
                     let mut stats = PixelStats::default();
                     let mut snaps = Vec::with_capacity(counts.len());
                     for s in 0..max_spp {
-                        let mut rng = rng::Rng::for_sample(opts.sample_seed, pixel, s as u64);
-                        let (jx, jy) = (rng.uniform(), rng.uniform());
+                        let mut rng = rng::Rng::for_pixel_sample(opts.sampler, opts.sample_seed, pixel, s);
+                        let [u, v] = rng.uniform2();
+                        let (jx, jy) = (filter.jitter(u), filter.jitter(v));
                         let (sx, sy) = ((x as f32 + jx) / w as f32, (y as f32 + jy) / h as f32);
                         let sample = integrator::trace(scene, sx, sy, &mut rng, opts.nee, &mut counters);
                         stats.add(&sample);
@@ -148,6 +180,8 @@ pub fn render_to_dir(
         Attribute::string("kpcn:source", concat!("kpcn render ", env!("CARGO_PKG_VERSION"))),
         Attribute::string("kpcn:effects", &effects.join(",")),
         Attribute::string("kpcn:sample_seed", &opts.sample_seed.to_string()),
+        Attribute::string("kpcn:pixel_filter", &opts.filter.name()),
+        Attribute::string("kpcn:sampler", opts.sampler.name()),
     ];
     let t = std::time::Instant::now();
     let out = render(&scene, opts, &attrs, progress)?;

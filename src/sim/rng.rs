@@ -1,10 +1,13 @@
 //! Per-sample random streams: every (seed, pixel, sample) gets its own PCG32 stream, so
-//! images do not depend on the thread count or tile order.
+//! images do not depend on the thread count or tile order. With [`Sampler::Sobol`] the
+//! first dimensions of each sample come from a scrambled low-discrepancy sequence instead.
 
-/// PCG32 (O'Neill), a small fast generator with good statistics.
+/// PCG32 (O'Neill), a small fast generator with good statistics, optionally led by
+/// scrambled Sobol' points.
 pub struct Rng {
     state: u64,
     inc: u64,
+    sobol: Option<Sobol>,
 }
 
 use crate::rng::mix;
@@ -15,10 +18,21 @@ impl Rng {
         let a = mix(seed ^ 0x9E37_79B9_7F4A_7C15);
         let b = mix(a ^ pixel.wrapping_mul(0xD6E8_FEB8_6659_FD93));
         let c = mix(b ^ sample.wrapping_mul(0xA076_1D64_78BD_642F));
-        let mut r = Rng { state: 0, inc: (mix(c ^ 0x5851_F42D) << 1) | 1 };
+        let mut r = Rng { state: 0, inc: (mix(c ^ 0x5851_F42D) << 1) | 1, sobol: None };
         r.next_u32();
         r.state = r.state.wrapping_add(c);
         r.next_u32();
+        r
+    }
+
+    /// The numbers of one sample of one pixel under `sampler`. With [`Sampler::Sobol`] the
+    /// pixel's samples are the points of one scrambled sequence, in order.
+    pub fn for_pixel_sample(sampler: Sampler, seed: u64, pixel: u64, sample: u32) -> Self {
+        let mut r = Rng::for_sample(seed, pixel, sample as u64);
+        if sampler == Sampler::Sobol {
+            let pixel_seed = mix(mix(seed ^ 0x50B0_1D00) ^ pixel.wrapping_mul(0xD6E8_FEB8_6659_FD93));
+            r.sobol = Some(Sobol { index: sample, seed: pixel_seed, dim: 0 });
+        }
         r
     }
 
@@ -33,11 +47,161 @@ impl Rng {
 
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f32 {
+        if let Some(s) = self.sobol.as_mut().filter(|s| s.dim < SOBOL_DIMENSIONS) {
+            let d = s.dim;
+            s.dim += 1;
+            return s.value(d / 2, d % 2);
+        }
         (self.next_u32() >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
     }
 
-    /// Two uniforms.
+    /// Two uniforms; from the Sobol' sampler, one 2D-stratified pair.
     pub fn uniform2(&mut self) -> [f32; 2] {
+        if let Some(s) = self.sobol.as_mut() {
+            // Start pairs on an even dimension so both components share one 2D point.
+            s.dim += s.dim % 2;
+            if s.dim < SOBOL_DIMENSIONS {
+                let pair = s.dim / 2;
+                s.dim += 2;
+                return [s.value(pair, 0), s.value(pair, 1)];
+            }
+        }
         [self.uniform(), self.uniform()]
+    }
+}
+
+/// How a pixel's samples are placed in the sample space.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Sampler {
+    /// Independent uniform numbers for every sample (PCG32 streams).
+    #[default]
+    Random,
+    /// Owen-scrambled Sobol' points, padded per dimension pair, for the first
+    /// [`SOBOL_DIMENSIONS`] dimensions of a path, then independent streams (the kind of
+    /// low-discrepancy sampler production renderers use: Cycles' Sobol-Burley, pbrt's
+    /// padded Sobol'). A pixel's first 2ᵏ samples stratify every pair of dimensions.
+    Sobol,
+}
+
+impl Sampler {
+    /// The name used on the command line and in file metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Random => "random",
+            Sampler::Sobol => "sobol",
+        }
+    }
+}
+
+/// Dimensions of a path drawn from Sobol' points before the independent streams take over:
+/// the film position, the lens and the first bounces.
+pub const SOBOL_DIMENSIONS: u32 = 32;
+
+/// The Sobol' state of one sample: which point of the pixel's sequence, its scrambling
+/// seed, and the next dimension to hand out.
+struct Sobol {
+    index: u32,
+    seed: u64,
+    dim: u32,
+}
+
+impl Sobol {
+    /// Component `comp` (0 or 1) of dimension pair `pair`.
+    fn value(&self, pair: u32, comp: u32) -> f32 {
+        let pair_seed = mix(self.seed ^ (pair as u64).wrapping_mul(0x9E6C_63D0_676A_9A99));
+        // Each pair gets its own shuffle of the point order (padding), so pairs are
+        // decorrelated while each pair keeps its 2D stratification.
+        let index = nested_uniform_scramble(self.index, pair_seed as u32);
+        let x = sobol_2d(index, comp);
+        let x = nested_uniform_scramble(x, (pair_seed >> 32) as u32 ^ comp.wrapping_mul(0x68E3_1DA4));
+        (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+    }
+}
+
+/// The first two dimensions of the Sobol' sequence as 32-bit fractions: the van der Corput
+/// sequence and its Pascal-matrix partner.
+fn sobol_2d(index: u32, comp: u32) -> u32 {
+    if comp == 0 {
+        return index.reverse_bits();
+    }
+    let (mut x, mut v, mut i) = (0u32, 1u32 << 31, index);
+    while i != 0 {
+        if i & 1 != 0 {
+            x ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    x
+}
+
+/// An Owen scramble of a 32-bit fraction: a hash-based nested uniform permutation of its
+/// bits (Laine–Karras, with Burley's constants), which keeps a net a net.
+fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
+    let mut v = x.reverse_bits();
+    v = v.wrapping_add(seed);
+    v ^= v.wrapping_mul(0x6C50_B47C);
+    v ^= v.wrapping_mul(0xB82F_1E52);
+    v ^= v.wrapping_mul(0xC7AF_E638);
+    v ^= v.wrapping_mul(0x8D22_F6E6);
+    v.reverse_bits()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn points(pixel: u64, n: u32) -> Vec<[f32; 2]> {
+        (0..n).map(|s| Rng::for_pixel_sample(Sampler::Sobol, 7, pixel, s).uniform2()).collect()
+    }
+
+    #[test]
+    fn sobol_pairs_are_stratified_in_2d_and_1d() {
+        for pixel in [0, 1, 12345] {
+            let p = points(pixel, 16);
+            let mut cells = [0u32; 16];
+            let (mut xs, mut ys) = ([0u32; 16], [0u32; 16]);
+            for [x, y] in &p {
+                cells[(x * 4.0) as usize * 4 + (y * 4.0) as usize] += 1;
+                xs[(x * 16.0) as usize] += 1;
+                ys[(y * 16.0) as usize] += 1;
+            }
+            assert!(cells.iter().all(|&c| c == 1), "pixel {pixel}: {cells:?}");
+            assert!(xs.iter().chain(&ys).all(|&c| c == 1), "pixel {pixel}: {xs:?} {ys:?}");
+        }
+        assert_ne!(points(0, 4), points(1, 4), "pixels are scrambled independently");
+    }
+
+    #[test]
+    fn later_pairs_are_stratified_and_unbiased() {
+        // Dimension pair 3 (after a lone uniform, which pads to the next pair).
+        let mut sum = 0f64;
+        for pixel in 0..64u64 {
+            let mut xs = [0u32; 8];
+            for s in 0..8 {
+                let mut r = Rng::for_pixel_sample(Sampler::Sobol, 3, pixel, s);
+                r.uniform2();
+                r.uniform();
+                r.uniform2();
+                let [x, y] = r.uniform2();
+                xs[(x * 8.0) as usize] += 1;
+                sum += (x + y) as f64;
+            }
+            assert!(xs.iter().all(|&c| c == 1), "{xs:?}");
+        }
+        let mean = sum / (64.0 * 8.0 * 2.0);
+        assert!((mean - 0.5).abs() < 0.02, "{mean}");
+    }
+
+    #[test]
+    fn past_the_sobol_dimensions_samples_are_independent_streams() {
+        let mut a = Rng::for_pixel_sample(Sampler::Sobol, 1, 2, 3);
+        let mut b = Rng::for_sample(1, 2, 3);
+        for _ in 0..SOBOL_DIMENSIONS {
+            a.uniform();
+        }
+        assert_eq!(a.uniform(), b.uniform(), "the PCG stream is untouched by the Sobol' dimensions");
+        let mut r = Rng::for_pixel_sample(Sampler::Random, 1, 2, 3);
+        assert_eq!(r.uniform(), Rng::for_sample(1, 2, 3).uniform());
     }
 }

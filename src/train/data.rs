@@ -1,7 +1,7 @@
 //! Training data: frames listed in a `kpcn dataset` manifest, their reference targets, an
 //! importance map, and batches of patches.
 
-use crate::features::{Branch, EPSILON, Features, log_specular, sanitize};
+use crate::features::{Branch, EPSILON, Features, Orientation, log_specular, sanitize};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
 use crate::model::{Architecture, ModelError, Variances};
@@ -385,13 +385,27 @@ pub fn batch(
     arch: &Architecture,
     b: Branch,
 ) -> Result<Batch, DataError> {
+    batch_oriented(frames, origins, &[], p, arch, b)
+}
+
+/// [`batch`] with patch `i` seen in orientation `orientations[i]` (the identity where the
+/// slice is short): every buffer of the patch mirrored or transposed alike.
+pub fn batch_oriented(
+    frames: &[&Frame],
+    origins: &[(usize, usize)],
+    orientations: &[Orientation],
+    p: usize,
+    arch: &Architecture,
+    b: Branch,
+) -> Result<Batch, DataError> {
     let (rf, rk) = arch.train_margins();
     let n = frames.len();
     let (mut input, mut noisy, mut target, mut albedo, mut reference) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for (f, &(x0, y0)) in frames.iter().zip(origins) {
+    for (i, (f, &(x0, y0))) in frames.iter().zip(origins).enumerate() {
+        let o = orientations.get(i).copied().unwrap_or_default();
         let fe = &f.features;
-        input.extend(fe.branch_input(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, p + 2 * rf));
+        input.extend(fe.branch_input_oriented(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, o));
         let c = fe.colour(b);
         let region = fe.region(
             &crate::eval::rgb(c),
@@ -400,6 +414,7 @@ pub fn batch(
             p + 2 * rk,
             p + 2 * rk,
         );
+        let region = o.apply(&region, p + 2 * rk);
         match b {
             Branch::Specular => noisy.extend(region.into_iter().map(|v| arch.specular.kernel_input(v))),
             Branch::Diffuse => noisy.extend(region),
@@ -408,9 +423,11 @@ pub fn batch(
             Branch::Diffuse => &f.target_d,
             Branch::Specular => &f.target_s,
         };
-        crop(t, fe.width, x0, y0, p, &mut target);
-        crop(&fe.albedo, fe.width, x0, y0, p, &mut albedo);
-        crop(&f.reference, fe.width, x0, y0, p, &mut reference);
+        for (planes, out) in [(t, &mut target), (&fe.albedo, &mut albedo), (&f.reference, &mut reference)] {
+            let mut patch = Vec::with_capacity(3 * p * p);
+            crop(planes, fe.width, x0, y0, p, &mut patch);
+            out.extend(o.apply(&patch, p));
+        }
     }
     let t = |v, s| super::tensor(v, s).map_err(DataError::from);
     Ok(Batch {

@@ -11,7 +11,7 @@ pub mod curves;
 pub mod data;
 pub mod records;
 
-use crate::features::EPSILON;
+use crate::features::{Branch, EPSILON, Orientation};
 use crate::kernel::ops::Ops;
 #[cfg(doc)]
 use crate::model::Architecture;
@@ -181,6 +181,56 @@ pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
     Ok((a - b)?.abs()?.mean_all()?)
 }
 
+/// Relative squared error `(x − y)² / (sg(x)² + 0.01)`, the training form of relMSE: the
+/// denominator is the prediction with its gradient stopped, so the loss is minimised by the
+/// mean of the plausible references, not by a value biased dark (as with y² in the
+/// denominator) or by their median (as with L1).
+pub fn relative_l2(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let den = (x.detach().sqr()? + 0.01)?;
+    Ok(((x - y)?.sqr()? / den)?.mean_all()?)
+}
+
+/// L1 between tonemapped radiances, ln(1 + max(v, 0)): keeps the shadows' and the
+/// highlights' shapes in view where the relative term is flat.
+pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let t = |v: &Tensor| -> Result<Tensor, ModelError> { Ok((v.relu()? + 1.0)?.log()?) };
+    l1(&t(x)?, &t(y)?)
+}
+
+/// The training loss.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Loss {
+    /// Bako et al.: L1 on each branch's transformed target (irradiance, ln(1 + specular)),
+    /// then L1 on the recomposed colour.
+    #[default]
+    L1,
+    /// [`relative_l2`] + [`tonemapped_l1`] on linear radiance: on the irradiance and the
+    /// specular radiance in phase 1, on the recomposed colour in phase 2.
+    Relative,
+}
+
+impl Loss {
+    /// The loss of a prediction of linear radiance (the irradiance, the colour).
+    pub fn radiance(self, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+        match self {
+            Loss::L1 => l1(x, y),
+            Loss::Relative => Ok((relative_l2(x, y)? + tonemapped_l1(x, y)?)?),
+        }
+    }
+
+    /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
+    pub fn specular(self, domain: Specular, s_hat: &Tensor, target_log: &Tensor) -> Result<Tensor, ModelError> {
+        let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
+        match self {
+            Loss::L1 => Ok(log),
+            Loss::Relative => {
+                let target = (target_log.exp()? - 1.0)?;
+                Ok((relative_l2(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
+            }
+        }
+    }
+}
+
 /// Recomposed colour `(albedo + ε) ⊙ d̂` plus the specular radiance of `ŝ`
 /// ([`Specular::radiance_tensor`]).
 pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor, domain: Specular) -> Result<Tensor, ModelError> {
@@ -201,6 +251,32 @@ pub fn tensor(data: Vec<f32>, shape: (usize, usize, usize, usize)) -> Result<Ten
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// d loss / d x for a constant prediction `x` against samples `ys`.
+    fn slope(loss: fn(&Tensor, &Tensor) -> Result<Tensor, ModelError>, x: f32, ys: &[f32]) -> f32 {
+        let v = Var::from_tensor(&Tensor::full(x, ys.len(), &Device::Cpu).unwrap()).unwrap();
+        let y = Tensor::new(ys, &Device::Cpu).unwrap();
+        let g = loss(v.as_tensor(), &y).unwrap().backward().unwrap();
+        g.get(v.as_tensor()).unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap()
+    }
+
+    #[test]
+    fn relative_loss_seeks_the_mean_where_l1_seeks_the_median() {
+        // Skewed plausible references, as where a rare bright sample may or may not be real.
+        let ys = [0.1f32, 0.1, 0.1, 2.0];
+        let mean = ys.iter().sum::<f32>() / 4.0;
+        assert!(slope(relative_l2, mean, &ys).abs() < 1e-6, "stationary at the mean");
+        assert!(slope(relative_l2, 0.1, &ys) < 0.0, "below the mean it pushes up");
+        assert!(slope(relative_l2, 1.0, &ys) > 0.0);
+        // L1's slope is already zero-or-positive just above the median: it keeps the dark value.
+        assert!(slope(l1, 0.11, &ys) > 0.0);
+        // The tonemapped term is finite on negative and huge values.
+        let t = tonemapped_l1(
+            &Tensor::new(&[-1f32, 1e30], &Device::Cpu).unwrap(),
+            &Tensor::new(&[0f32, 1.0], &Device::Cpu).unwrap(),
+        );
+        assert!(scalar(&t.unwrap()).unwrap().is_finite());
+    }
 
     #[test]
     fn optimiser_state_keeps_no_autograd_graph() {
@@ -231,6 +307,8 @@ mod tests {
             validate_every: 1,
             ops: Default::default(),
             cosine: true,
+            loss: Loss::L1,
+            augment: false,
         };
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(o.learning_rate(1), 1e-3));
@@ -284,6 +362,10 @@ pub struct TrainOptions {
     /// Cosine learning-rate decay within each phase, from its rate down to
     /// [`COSINE_FLOOR`] of it; else constant rates.
     pub cosine: bool,
+    /// The loss.
+    pub loss: Loss,
+    /// Each patch in one of the square's eight orientations, drawn at random.
+    pub augment: bool,
 }
 
 /// Where a cosine schedule ends, as a fraction of the phase's starting rate.
@@ -442,26 +524,33 @@ impl<'a> Trainer<'a> {
         self.step >= self.opts.phase1_steps + self.opts.phase2_steps
     }
 
-    fn sample(&mut self) -> (Vec<&'a data::Frame>, Vec<(usize, usize)>) {
+    fn sample(&mut self) -> (Vec<&'a data::Frame>, Vec<(usize, usize)>, Vec<Orientation>) {
         let p = self.opts.patch;
         let usable: Vec<&data::Frame> =
             self.data.train.iter().filter(|f| f.features.width >= p && f.features.height >= p).collect();
-        (0..self.opts.batch)
-            .map(|_| {
-                let f = usable[(self.rng.next_u64() % usable.len() as u64) as usize];
-                (f, f.patch_origin(p, self.rng.uniform_f64(), self.opts.importance))
-            })
-            .unzip()
+        let mut patches = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..self.opts.batch {
+            let f = usable[(self.rng.next_u64() % usable.len() as u64) as usize];
+            patches.0.push(f);
+            patches.1.push(f.patch_origin(p, self.rng.uniform_f64(), self.opts.importance));
+            // Drawn only when augmenting, so runs without it keep their patch sequence.
+            patches.2.push(if self.opts.augment {
+                Orientation::from_index(self.rng.next_u64() % 8)
+            } else {
+                Orientation::default()
+            });
+        }
+        patches
     }
 
     /// One optimisation step.
     pub fn train_step(&mut self) -> Result<LogRow, TrainError> {
         let t = std::time::Instant::now();
-        let (frames, origins) = self.sample();
+        let (frames, origins, orientations) = self.sample();
         let arch = self.model.base.arch;
         let p = self.opts.patch;
-        let bd = data::batch(&frames, &origins, p, &arch, crate::features::Branch::Diffuse)?;
-        let bs = data::batch(&frames, &origins, p, &arch, crate::features::Branch::Specular)?;
+        let bd = data::batch_oriented(&frames, &origins, &orientations, p, &arch, Branch::Diffuse)?;
+        let bs = data::batch_oriented(&frames, &origins, &orientations, p, &arch, Branch::Specular)?;
         self.step += 1;
         let mut row = LogRow {
             step: self.step,
@@ -477,10 +566,11 @@ impl<'a> Trainer<'a> {
         let lr = self.opts.learning_rate(self.step);
         (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
         if self.step <= self.opts.phase1_steps {
-            let ld = l1(&self.model.predict(true, &bd.input, &bd.noisy)?, &bd.target)?;
+            let d_hat = self.model.predict(true, &bd.input, &bd.noisy)?;
+            let ld = self.opts.loss.radiance(&d_hat, &bd.target)?;
             self.adam_d.step(&self.model.vars(true, false), &ld)?;
             let s_hat = self.model.predict(false, &bs.input, &bs.noisy)?;
-            let ls = l1(&arch.specular.log_tensor(&s_hat)?, &bs.target)?;
+            let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target)?;
             self.adam_s.step(&self.model.vars(false, true), &ls)?;
             row.loss_diffuse = scalar(&ld)? as f64;
             row.loss_specular = scalar(&ls)? as f64;
@@ -488,7 +578,8 @@ impl<'a> Trainer<'a> {
             row.phase = 2;
             let d = self.model.predict(true, &bd.input, &bd.noisy)?;
             let s = self.model.predict(false, &bs.input, &bs.noisy)?;
-            let lc = l1(&recompose(&bd.albedo, &d, &s, arch.specular)?, &bd.reference)?;
+            let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
+            let lc = self.opts.loss.radiance(&c, &bd.reference)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }

@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Second training segment of a ladder rung: fine-tunes scripts/train-ladder.sh's model on
+# production-like simulator data with the relative (mean-seeking) loss.
+#
+#   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
+#   KPCN_WORK=DIR                         # work folder (default ./train-v2)
+#   KPCN_LADDER=DIR                       # the ladder's work folder (default ./train-ladder)
+#   KPCN_STEPS=N KPCN_PHASE2_STEPS=M      # segment length (defaults 8000 and 2000)
+#   KPCN_DEV=DIR                          # also score a folder of real renders at every
+#                                         # validation (monitoring only: never trained on)
+#
+# Steps, each skipped when its output exists and resumed when interrupted:
+#   1. the rung itself, from nothing: scripts/train-ladder.sh RUNG (WORK_LADDER/RUNG);
+#   2. data: 8 families x 8 permutations (seeds 6-13, disjoint from the ladder's 0-5) at
+#      2, 4, 16 and 64 spp with 512-spp references, plus the `slit` family x 6 with
+#      2048-spp references (light through a slit converges slowly), all 320x180 and sampled
+#      as Cycles samples (Blackman-Harris 1.5 px, scrambled Sobol'). About 50 min on 2 cores;
+#      `kpcn dataset` resumes where it stopped;
+#   3. fine-tuning from step 1's weights: --loss relative, --augment (8 orientations),
+#      cosine schedule, lr 2e-4 / 5e-5,
+#      batch 4, 96-px patches. Resumes bit-exactly from WORK/RUNG/checkpoint.safetensors.
+#
+# Then: kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors
+# Runs at low priority (nice 19) so builds and tests beside it keep their cores.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rung=${1:-balanced}
+work=${KPCN_WORK:-train-v2}
+ladder=${KPCN_LADDER:-train-ladder}
+mkdir -p "$work"
+
+KPCN_WORK=$ladder scripts/train-ladder.sh "$rung"
+
+cargo build --release --locked --quiet
+# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
+cp target/release/kpcn "$work/kpcn.$$"
+mv "$work/kpcn.$$" "$work/kpcn"
+kpcn=$work/kpcn
+
+data=(--spp 2,4,16,64 --resolution 320x180 -o "$work/data" -q)
+nice -n 19 "$kpcn" dataset --count 8 --first-seed 6 --reference-spp 512 "${data[@]}"
+nice -n 19 "$kpcn" dataset --families slit --count 6 --reference-spp 2048 "${data[@]}"
+
+run=$work/$rung
+if [ -f "$run/model.safetensors" ]; then
+    echo "$rung: done ($run/model.safetensors)"
+    exit 0
+fi
+start=(--init "$ladder/$rung/model.safetensors")
+if [ -f "$run/checkpoint.safetensors" ]; then
+    start=(--resume)
+fi
+dev=()
+if [ -n "${KPCN_DEV:-}" ]; then
+    dev=(--dev "$KPCN_DEV")
+fi
+nice -n 19 "$kpcn" train --data "$work/data" -o "$run" "${start[@]}" "${dev[@]}" \
+    --steps "${KPCN_STEPS:-8000}" --phase2-steps "${KPCN_PHASE2_STEPS:-2000}" --batch 4 --patch 96 \
+    --lr 2e-4 --lr-phase2 5e-5 --schedule cosine --loss relative --augment \
+    --checkpoint-every 200 --validate-every 1000 -q
+echo "$rung: $run/model.safetensors (log: $run/log.csv)"
