@@ -11,11 +11,13 @@
 #
 # Steps, each skipped when its output exists and resumed when interrupted:
 #   1. the rung itself, from nothing: scripts/train-ladder.sh RUNG (WORK_LADDER/RUNG);
-#   2. data: 8 families x 8 permutations (seeds 6-13, disjoint from the ladder's 0-5) at
-#      2, 4, 16 and 64 spp with 512-spp references, plus the `slit` family x 6 with
-#      2048-spp references (light through a slit converges slowly), all 320x180 and sampled
-#      as Cycles samples (Blackman-Harris 1.5 px, scrambled Sobol'). About 50 min on 2 cores;
-#      `kpcn dataset` resumes where it stopped;
+#   2. data: all 9 families x 8 permutations (seeds 6-13, disjoint from the ladder's 0-5)
+#      at 2, 4, 16 and 64 spp with 512-spp references, plus `slit` seeds 0-5 with
+#      2048-spp references (light through a slit converges slowly; the relative loss is
+#      minimised by the mean, so the noisier 512-spp slit references still pull the right
+#      way), all 320x180 and sampled as Cycles samples (Blackman-Harris 1.5 px, scrambled
+#      Sobol'): 78 scenes, 312 frames. About 25 min on 2 cores; `kpcn dataset` resumes
+#      where it stopped;
 #   3. fine-tuning from step 1's weights: --loss relative, --augment (8 orientations),
 #      cosine schedule, lr 2e-4 / 5e-5,
 #      batch 4, 96-px patches. Resumes bit-exactly from WORK/RUNG/checkpoint.safetensors.
