@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Second training segment of a ladder rung: fine-tunes scripts/train-ladder.sh's model on
-# production-like simulator data with the relative (mean-seeking) loss.
+# Further training segments of a ladder rung: fine-tunes scripts/train-ladder.sh's model on
+# production-like simulator data with the relative (mean-seeking) loss, then with
+# fireflies injected into the inputs.
 #
 #   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
 #   KPCN_WORK=DIR                         # work folder (default ./train-v2)
@@ -18,11 +19,15 @@
 #      way), all 320x180 and sampled as Cycles samples (Blackman-Harris 1.5 px, scrambled
 #      Sobol'): 78 scenes, 312 frames. About 25 min on 2 cores; `kpcn dataset` resumes
 #      where it stopped;
-#   3. fine-tuning from step 1's weights: --loss relative, --augment (8 orientations),
-#      cosine schedule, lr 2e-4 / 5e-5,
-#      batch 4, 96-px patches. Resumes bit-exactly from WORK/RUNG/checkpoint.safetensors.
+#   3. segment 1, from step 1's weights: --loss relative, --augment (8 orientations),
+#      8,000 + 2,000 steps, cosine schedule, lr 2e-4 / 5e-5, batch 4, 96-px patches
+#      (WORK/RUNG, about 33 min; models/segments/balanced-v2.safetensors);
+#   4. segment 2, from segment 1's weights: the same with --fireflies, 2,000 + 1,000 steps,
+#      lr 1e-4 / 3e-5 (WORK/RUNG-fireflies).
+# Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
-# Then: kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors
+# Neither segment is shipped yet (BENCHMARKS.md has why). To try one as the rung:
+#   kpcn model half WORK/RUNG-fireflies/model.safetensors -o models/RUNG.safetensors
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -43,21 +48,28 @@ data=(--spp 2,4,16,64 --resolution 320x180 -o "$work/data" -q)
 nice -n 19 "$kpcn" dataset --count 8 --first-seed 6 --reference-spp 512 "${data[@]}"
 nice -n 19 "$kpcn" dataset --families slit --count 6 --reference-spp 2048 "${data[@]}"
 
-run=$work/$rung
-if [ -f "$run/model.safetensors" ]; then
-    echo "$rung: done ($run/model.safetensors)"
-    exit 0
-fi
-start=(--init "$ladder/$rung/model.safetensors")
-if [ -f "$run/checkpoint.safetensors" ]; then
-    start=(--resume)
-fi
 dev=()
 if [ -n "${KPCN_DEV:-}" ]; then
     dev=(--dev "$KPCN_DEV")
 fi
-nice -n 19 "$kpcn" train --data "$work/data" -o "$run" "${start[@]}" "${dev[@]}" \
-    --steps "${KPCN_STEPS:-8000}" --phase2-steps "${KPCN_PHASE2_STEPS:-2000}" --batch 4 --patch 96 \
-    --lr 2e-4 --lr-phase2 5e-5 --schedule cosine --loss relative --augment \
-    --checkpoint-every 200 --validate-every 1000 -q
-echo "$rung: $run/model.safetensors (log: $run/log.csv)"
+# segment NAME INIT PHASE1 PHASE2 LR LR2 [FLAGS...]: one resumable fine-tuning run.
+segment() {
+    local run=$work/$1 init=$2 steps=$3 phase2=$4 lr=$5 lr2=$6
+    shift 6
+    if [ -f "$run/model.safetensors" ]; then
+        echo "$run: done"
+        return
+    fi
+    local start=(--init "$init")
+    if [ -f "$run/checkpoint.safetensors" ]; then
+        start=(--resume)
+    fi
+    nice -n 19 "$kpcn" train --data "$work/data" -o "$run" "${start[@]}" "${dev[@]}" \
+        --steps "$steps" --phase2-steps "$phase2" --batch 4 --patch 96 --lr "$lr" --lr-phase2 "$lr2" \
+        --schedule cosine --loss relative --augment --checkpoint-every 200 --validate-every 1000 -q "$@"
+    echo "$run/model.safetensors (log: $run/log.csv)"
+}
+# Segment 1: the relative loss keeps sparse light's brightness, and fireflies' too.
+segment "$rung" "$ladder/$rung/model.safetensors" "${KPCN_STEPS:-8000}" "${KPCN_PHASE2_STEPS:-2000}" 2e-4 5e-5
+# Segment 2: fireflies added to the inputs (never the references) teach it to drop them.
+segment "$rung-fireflies" "$work/$rung/model.safetensors" 2000 1000 1e-4 3e-5 --fireflies

@@ -181,22 +181,12 @@ fn scenes_lists_every_family_and_dataset_writes_and_extends_a_manifest() {
     assert_eq!(listed, kpcn::sim::families::FAMILIES.len(), "{}", text(&out.stdout));
 
     let dir = tempfile::tempdir().unwrap();
-    let out = kpcn(&[
-        "dataset",
-        "--families",
-        "glass,dof",
-        "--count",
-        "2",
-        "--spp",
-        "2,4",
-        "--reference-spp",
-        "8",
-        "--resolution",
-        "16x9",
-        "-q",
-        "-o",
-        dir.path().to_str().unwrap(),
-    ]);
+    let o = dir.path().to_str().unwrap();
+    let dataset = |families: &str, count: &str| {
+        let common = ["--spp", "2,4", "--reference-spp", "8", "--resolution", "16x9", "-q", "-o", o];
+        kpcn(&[&["dataset", "--families", families, "--count", count][..], &common[..]].concat())
+    };
+    let out = dataset("glass,dof", "2");
     assert!(out.status.success(), "{}", text(&out.stderr));
     let manifest = std::fs::read_to_string(dir.path().join("manifest.csv")).unwrap();
     let rows: Vec<&str> = manifest.lines().collect();
@@ -212,22 +202,7 @@ fn scenes_lists_every_family_and_dataset_writes_and_extends_a_manifest() {
     let kept = dir.path().join("glass-0000/glass-0000-00002spp.exr");
     let stamp = std::fs::metadata(&kept).unwrap().modified().unwrap();
     std::fs::remove_file(dir.path().join("dof-0001/dof-0001-00004spp.exr")).unwrap();
-    let out = kpcn(&[
-        "dataset",
-        "--families",
-        "glass,dof,cornell",
-        "--count",
-        "3",
-        "--spp",
-        "2,4",
-        "--reference-spp",
-        "8",
-        "--resolution",
-        "16x9",
-        "-q",
-        "-o",
-        dir.path().to_str().unwrap(),
-    ]);
+    let out = dataset("glass,dof,cornell", "3");
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(text(&out.stdout).contains("3 scenes already in"), "{}", text(&out.stdout));
     assert_eq!(std::fs::metadata(&kept).unwrap().modified().unwrap(), stamp, "kept, not rendered again");

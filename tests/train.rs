@@ -2,7 +2,7 @@
 
 use kpcn::features::{Branch, Orientation};
 use kpcn::model::{Architecture, Design, Kind, Model};
-use kpcn::train::data::{Dataset, batch, batch_oriented};
+use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
 use kpcn::train::{Loss, TrainOptions, Trainer, l1};
 use std::path::Path;
 use std::process::Command;
@@ -49,6 +49,7 @@ fn options(steps: u64) -> TrainOptions {
         cosine: true,
         loss: Default::default(),
         augment: false,
+        fireflies: false,
     }
 }
 
@@ -109,7 +110,7 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
 
     // 4 + 2 steps straight through equal 3 steps, a checkpoint, a resume and 3 more
     // (phase 2 included), with the relative loss and augmentation.
-    let opts = || TrainOptions { loss: Loss::Relative, augment: true, ..options(4) };
+    let opts = || TrainOptions { loss: Loss::Relative, augment: true, fireflies: true, ..options(4) };
     let mut straight = Trainer::new(&tiny(), &data, opts()).unwrap();
     while !straight.finished() {
         straight.train_step().unwrap();
@@ -142,9 +143,11 @@ fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
     let arch = tiny().arch;
     let (p, rk) = (8, arch.train_margins().1);
     let o = [Orientation::from_index(5), Orientation::from_index(2)];
+    let augs: Vec<Augmentation> =
+        o.iter().map(|&orientation| Augmentation { orientation, fireflies: vec![] }).collect();
     for b in [Branch::Diffuse, Branch::Specular] {
         let plain = batch(&frames, &origins, p, &arch, b).unwrap();
-        let turned = batch_oriented(&frames, &origins, &o, p, &arch, b).unwrap();
+        let turned = batch_augmented(&frames, &origins, &augs, p, &arch, b).unwrap();
         let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         for (a, t, side) in [
             (&plain.target, &turned.target, p),
@@ -164,6 +167,45 @@ fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
         let side = (n as f64).sqrt() as usize;
         assert_eq!(o[0].apply(&a[..3 * n], side), t[..3 * n]);
         assert_ne!(a, t);
+    }
+}
+
+#[test]
+fn fireflies_are_added_to_the_noisy_input_only() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let frames: Vec<_> = data.train.iter().take(1).collect();
+    let arch = tiny().arch;
+    let (p, (rf, rk)) = (8, arch.train_margins());
+    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    for (b, diffuse) in [(Branch::Diffuse, true), (Branch::Specular, false)] {
+        let ff = Firefly { x: 3, y: 5, gain: 1000.0, diffuse };
+        let aug = Augmentation { orientation: Default::default(), fireflies: vec![ff] };
+        let plain = batch(&frames, &[(4, 4)], p, &arch, b).unwrap();
+        let hit = batch_augmented(&frames, &[(4, 4)], &[aug], p, &arch, b).unwrap();
+        for (a, h) in [(&plain.target, &hit.target), (&plain.albedo, &hit.albedo), (&plain.reference, &hit.reference)] {
+            assert_eq!(v(a), v(h), "the reference side is untouched");
+        }
+        let (a, h) = (v(&plain.input), v(&hit.input));
+        let si = p + 2 * rf;
+        let at = |ch: usize, x: usize, y: usize| ch * si * si + (y + rf) * si + x + rf;
+        let rise = h[at(0, 3, 5)] - a[at(0, 3, 5)];
+        assert!(rise > 1.0, "{b:?}: the pixel brightens ({rise})");
+        // Its gradients change with it, and only where a backward difference touches it.
+        assert_eq!(h[at(3, 3, 5)] - a[at(3, 3, 5)], rise);
+        assert_eq!(a[at(3, 4, 5)] - h[at(3, 4, 5)], rise);
+        assert!(h[at(23, 3, 5)] > a[at(23, 3, 5)], "its variance grows");
+        let changed = a.iter().zip(&h).filter(|(x, y)| x != y).count();
+        assert_eq!(changed, 3 * 5 + 1, "3 colours × (value, 2 x- and 2 y-differences) + variance");
+        let sn = p + 2 * rk;
+        let (na, nh) = (v(&plain.noisy), v(&hit.noisy));
+        assert!(nh[(5 + rk) * sn + 3 + rk] > na[(5 + rk) * sn + 3 + rk]);
+        assert_eq!(na.iter().zip(&nh).filter(|(x, y)| x != y).count(), 3);
+        // A firefly of the other branch leaves this one alone.
+        let other =
+            Augmentation { orientation: Default::default(), fireflies: vec![Firefly { diffuse: !diffuse, ..ff }] };
+        assert_eq!(v(&batch_augmented(&frames, &[(4, 4)], &[other], p, &arch, b).unwrap().input), a);
     }
 }
 

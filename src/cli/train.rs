@@ -81,6 +81,12 @@ pub struct TrainArgs {
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
     pub augment: bool,
+    /// Add up to 3 single-pixel fireflies (30–10,000× the patch's mean) to each patch's
+    /// noisy input, never to its reference, so the network learns to remove outliers that
+    /// a mean-seeking loss (`--loss relative`) would keep as light. Give it again with
+    /// --resume.
+    #[arg(long)]
+    pub fireflies: bool,
     /// Seed of initialisation and patch sampling: a run is reproducible from it.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -218,6 +224,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             LossArg::Relative => Loss::Relative,
         },
         augment: args.augment,
+        fireflies: args.fireflies,
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -355,7 +362,12 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         args.lr_phase2,
         args.schedule,
         args.loss,
-        if args.augment { ", augmented" } else { "" },
+        match (args.augment, args.fireflies) {
+            (true, true) => ", augmented, fireflies added",
+            (true, false) => ", augmented",
+            (false, true) => ", fireflies added",
+            (false, false) => "",
+        },
         args.seed,
         if opts.importance { "importance" } else { "uniform" },
         args.data.display(),

@@ -165,6 +165,16 @@ impl Builder {
         self.d.environment = Some(EnvDesc { kind: EnvType::Sky, color: [strength; 3], rotation, sun });
     }
 
+    /// A `w` × `h` × `d` room centred on the origin, floor at 0, without its far wall
+    /// (z = −d/2), which [`Builder::wall_with_opening`] builds.
+    fn room_without_far_wall(&mut self, floor: &str, wall: &str, (w, h, d): (f32, f32, f32)) {
+        self.object(ShapeKind::Quad, floor, [0.0, 0.0, 0.0], [0.0; 3], [w, 1.0, d]);
+        self.object(ShapeKind::Quad, wall, [0.0, h, 0.0], [180.0, 0.0, 0.0], [w, 1.0, d]);
+        self.object(ShapeKind::Quad, wall, [-w / 2.0, h / 2.0, 0.0], [0.0, 0.0, -90.0], [h, 1.0, d]);
+        self.object(ShapeKind::Quad, wall, [w / 2.0, h / 2.0, 0.0], [0.0, 0.0, 90.0], [h, 1.0, d]);
+        self.object(ShapeKind::Quad, wall, [0.0, h / 2.0, d / 2.0], [-90.0, 0.0, 0.0], [w, 1.0, h]);
+    }
+
     /// The wall at depth `z` of a `w` × `h` room, built around a centred opening
     /// `open_w` wide from height `y0` to `y1`.
     fn wall_with_opening(&mut self, material: &str, z: f32, (w, h): (f32, f32), (open_w, y0, y1): (f32, f32, f32)) {
@@ -252,12 +262,8 @@ fn interior(b: &mut Builder) {
     b.diffuse("wood", wood);
     b.diffuse("cloth", TextureDesc::Color([0.2, 0.3, 0.6]));
     let (w, h, d) = (6.0, 2.8, 6.0);
-    // Room without a back wall; the back wall is built around a window.
-    b.object(ShapeKind::Quad, "floor", [0.0, 0.0, 0.0], [0.0; 3], [w, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [0.0, h, 0.0], [180.0, 0.0, 0.0], [w, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [-w / 2.0, h / 2.0, 0.0], [0.0, 0.0, -90.0], [h, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [w / 2.0, h / 2.0, 0.0], [0.0, 0.0, 90.0], [h, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [0.0, h / 2.0, d / 2.0], [-90.0, 0.0, 0.0], [w, 1.0, h]);
+    // The back wall is built around a window.
+    b.room_without_far_wall("floor", "wall", (w, h, d));
     b.wall_with_opening("wall", -d / 2.0, (w, h), (3.0, 0.9, 2.3));
     b.object(ShapeKind::Box, "wood", [0.3, 0.4, -1.0], [0.0, b.u(-20.0, 20.0), 0.0], [1.4, 0.8, 0.9]);
     b.object(ShapeKind::Sphere, "cloth", [0.3, 1.05, -1.0], [0.0; 3], [0.25; 3]);
@@ -283,11 +289,7 @@ fn slit(b: &mut Builder) {
     let (w, h, d) = (5.0, 2.8, 5.0);
     // A closed room but for a narrow slit, vertical or horizontal, in the far wall: all
     // light comes through it, most of it after bounces (failure mode: sparse indirect light).
-    b.object(ShapeKind::Quad, "floor", [0.0, 0.0, 0.0], [0.0; 3], [w, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [0.0, h, 0.0], [180.0, 0.0, 0.0], [w, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [-w / 2.0, h / 2.0, 0.0], [0.0, 0.0, -90.0], [h, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [w / 2.0, h / 2.0, 0.0], [0.0, 0.0, 90.0], [h, 1.0, d]);
-    b.object(ShapeKind::Quad, "wall", [0.0, h / 2.0, d / 2.0], [-90.0, 0.0, 0.0], [w, 1.0, h]);
+    b.room_without_far_wall("floor", "wall", (w, h, d));
     let gap = b.u(0.08, 0.25);
     let opening = if b.r() < 0.5 { (gap, 0.4, 2.4) } else { (b.u(1.5, 3.5), h - 0.4 - gap, h - 0.4) };
     b.wall_with_opening("wall", -d / 2.0, (w, h), opening);

@@ -385,15 +385,39 @@ pub fn batch(
     arch: &Architecture,
     b: Branch,
 ) -> Result<Batch, DataError> {
-    batch_oriented(frames, origins, &[], p, arch, b)
+    batch_augmented(frames, origins, &[], p, arch, b)
 }
 
-/// [`batch`] with patch `i` seen in orientation `orientations[i]` (the identity where the
-/// slice is short): every buffer of the patch mirrored or transposed alike.
-pub fn batch_oriented(
+/// A bright outlier added to a training patch's noisy input only (the reference stays
+/// clean), so that the loss teaches the network to remove fireflies, which a mean-seeking
+/// loss would otherwise learn to keep as real light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Firefly {
+    /// Column in the output patch (after orientation).
+    pub x: usize,
+    /// Row in the output patch.
+    pub y: usize,
+    /// Its radiance as a multiple of the patch's mean reference colour (+ 0.01).
+    pub gain: f32,
+    /// In the diffuse light (else the specular).
+    pub diffuse: bool,
+}
+
+/// How one training patch is shown.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Augmentation {
+    /// Mirrored and/or transposed.
+    pub orientation: Orientation,
+    /// Outliers added to the noisy input.
+    pub fireflies: Vec<Firefly>,
+}
+
+/// [`batch`] with patch `i` shown as `augmentations[i]` (as is where the slice is short):
+/// every buffer of the patch oriented alike, fireflies added to the noisy input only.
+pub fn batch_augmented(
     frames: &[&Frame],
     origins: &[(usize, usize)],
-    orientations: &[Orientation],
+    augmentations: &[Augmentation],
     p: usize,
     arch: &Architecture,
     b: Branch,
@@ -402,10 +426,13 @@ pub fn batch_oriented(
     let n = frames.len();
     let (mut input, mut noisy, mut target, mut albedo, mut reference) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let none = Augmentation::default();
     for (i, (f, &(x0, y0))) in frames.iter().zip(origins).enumerate() {
-        let o = orientations.get(i).copied().unwrap_or_default();
+        let aug = augmentations.get(i).unwrap_or(&none);
+        let o = aug.orientation;
         let fe = &f.features;
-        input.extend(fe.branch_input_oriented(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, o));
+        let mut patch_input =
+            fe.branch_input_oriented(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, o);
         let c = fe.colour(b);
         let region = fe.region(
             &crate::eval::rgb(c),
@@ -414,20 +441,31 @@ pub fn batch_oriented(
             p + 2 * rk,
             p + 2 * rk,
         );
-        let region = o.apply(&region, p + 2 * rk);
-        match b {
-            Branch::Specular => noisy.extend(region.into_iter().map(|v| arch.specular.kernel_input(v))),
-            Branch::Diffuse => noisy.extend(region),
-        }
+        let mut region = o.apply(&region, p + 2 * rk);
         let t = match b {
             Branch::Diffuse => &f.target_d,
             Branch::Specular => &f.target_s,
         };
-        for (planes, out) in [(t, &mut target), (&fe.albedo, &mut albedo), (&f.reference, &mut reference)] {
+        let mut crops = [t, &fe.albedo, &f.reference].map(|planes| {
             let mut patch = Vec::with_capacity(3 * p * p);
             crop(planes, fe.width, x0, y0, p, &mut patch);
-            out.extend(o.apply(&patch, p));
+            o.apply(&patch, p)
+        });
+        for ff in aug.fireflies.iter().filter(|ff| ff.diffuse == (b == Branch::Diffuse)) {
+            let level = crops[2].iter().map(|&v| v as f64).sum::<f64>() / crops[2].len().max(1) as f64 + 0.01;
+            let radiance = ff.gain * level as f32;
+            let albedo_at = |c: usize| crops[1][c * p * p + ff.y * p + ff.x];
+            add_firefly(&mut patch_input, &mut region, (ff.x, ff.y), (p, rf, rk), b, radiance, albedo_at);
         }
+        input.extend(patch_input);
+        match b {
+            Branch::Specular => noisy.extend(region.into_iter().map(|v| arch.specular.kernel_input(v))),
+            Branch::Diffuse => noisy.extend(region),
+        }
+        let [t, a, r] = &mut crops;
+        target.append(t);
+        albedo.append(a);
+        reference.append(r);
     }
     let t = |v, s| super::tensor(v, s).map_err(DataError::from);
     Ok(Batch {
@@ -437,6 +475,47 @@ pub fn batch_oriented(
         albedo: t(albedo, (n, 3, p, p))?,
         reference: t(reference, (n, 3, p, p))?,
     })
+}
+
+/// Adds `radiance` (grey) at output pixel `at` of one patch's branch input (c̃, its
+/// gradients and its variance) and of its noisy region (c̃), as a single very bright
+/// sample would: c̃ rises by the demodulated radiance (diffuse) or to ln(e^c̃ + radiance)
+/// (specular), the backward differences of that pixel and of its right and lower
+/// neighbours change by as much, and the variance of the mean by its square.
+fn add_firefly(
+    input: &mut [f32],
+    region: &mut [f32],
+    (x, y): (usize, usize),
+    (p, rf, rk): (usize, usize, usize),
+    b: Branch,
+    radiance: f32,
+    albedo: impl Fn(usize) -> f32,
+) {
+    let (si, sn) = (p + 2 * rf, p + 2 * rk);
+    let plane = si * si;
+    let (ix, iy) = (x + rf, y + rf);
+    for c in 0..3 {
+        let i = c * plane + iy * si + ix;
+        let before = input[i];
+        let after = match b {
+            Branch::Diffuse => before + radiance / (albedo(c).max(0.0) + EPSILON),
+            Branch::Specular => (before.exp() + radiance).ln(),
+        };
+        let delta = sanitize(after - before);
+        input[i] = sanitize(after);
+        region[c * sn * sn + (y + rk) * sn + x + rk] = sanitize(after);
+        // Gradients along x (channels 3..6) and y (13..16) of c̃.
+        input[(3 + c) * plane + iy * si + ix] += delta;
+        if ix + 1 < si {
+            input[(3 + c) * plane + iy * si + ix + 1] -= delta;
+        }
+        input[(13 + c) * plane + iy * si + ix] += delta;
+        if iy + 1 < si {
+            input[(13 + c) * plane + (iy + 1) * si + ix] -= delta;
+        }
+        // The branch's variance (channel 23, the channel average) grows by delta²/3.
+        input[23 * plane + iy * si + ix] = sanitize(input[23 * plane + iy * si + ix] + delta * delta / 3.0);
+    }
 }
 
 #[cfg(test)]

@@ -309,6 +309,7 @@ mod tests {
             cosine: true,
             loss: Loss::L1,
             augment: false,
+            fireflies: false,
         };
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(o.learning_rate(1), 1e-3));
@@ -366,6 +367,8 @@ pub struct TrainOptions {
     pub loss: Loss,
     /// Each patch in one of the square's eight orientations, drawn at random.
     pub augment: bool,
+    /// Up to 3 fireflies added to each patch's noisy input (never to its reference).
+    pub fireflies: bool,
 }
 
 /// Where a cosine schedule ends, as a fraction of the phase's starting rate.
@@ -524,7 +527,7 @@ impl<'a> Trainer<'a> {
         self.step >= self.opts.phase1_steps + self.opts.phase2_steps
     }
 
-    fn sample(&mut self) -> (Vec<&'a data::Frame>, Vec<(usize, usize)>, Vec<Orientation>) {
+    fn sample(&mut self) -> (Vec<&'a data::Frame>, Vec<(usize, usize)>, Vec<data::Augmentation>) {
         let p = self.opts.patch;
         let usable: Vec<&data::Frame> =
             self.data.train.iter().filter(|f| f.features.width >= p && f.features.height >= p).collect();
@@ -533,12 +536,21 @@ impl<'a> Trainer<'a> {
             let f = usable[(self.rng.next_u64() % usable.len() as u64) as usize];
             patches.0.push(f);
             patches.1.push(f.patch_origin(p, self.rng.uniform_f64(), self.opts.importance));
-            // Drawn only when augmenting, so runs without it keep their patch sequence.
-            patches.2.push(if self.opts.augment {
-                Orientation::from_index(self.rng.next_u64() % 8)
-            } else {
-                Orientation::default()
-            });
+            // Drawn only when asked for, so runs without them keep their patch sequence.
+            let mut aug = data::Augmentation::default();
+            if self.opts.augment {
+                aug.orientation = Orientation::from_index(self.rng.next_u64() % 8);
+            }
+            if self.opts.fireflies {
+                for _ in 0..self.rng.next_u64() % 4 {
+                    let (x, y) = ((self.rng.next_u64() % p as u64) as usize, (self.rng.next_u64() % p as u64) as usize);
+                    // 30 to 10,000 times the patch's mean brightness.
+                    let gain = 10f64.powf(1.5 + 2.5 * self.rng.uniform_f64()) as f32;
+                    let diffuse = self.rng.next_u64().is_multiple_of(2);
+                    aug.fireflies.push(data::Firefly { x, y, gain, diffuse });
+                }
+            }
+            patches.2.push(aug);
         }
         patches
     }
@@ -546,11 +558,11 @@ impl<'a> Trainer<'a> {
     /// One optimisation step.
     pub fn train_step(&mut self) -> Result<LogRow, TrainError> {
         let t = std::time::Instant::now();
-        let (frames, origins, orientations) = self.sample();
+        let (frames, origins, augmentations) = self.sample();
         let arch = self.model.base.arch;
         let p = self.opts.patch;
-        let bd = data::batch_oriented(&frames, &origins, &orientations, p, &arch, Branch::Diffuse)?;
-        let bs = data::batch_oriented(&frames, &origins, &orientations, p, &arch, Branch::Specular)?;
+        let bd = data::batch_augmented(&frames, &origins, &augmentations, p, &arch, Branch::Diffuse)?;
+        let bs = data::batch_augmented(&frames, &origins, &augmentations, p, &arch, Branch::Specular)?;
         self.step += 1;
         let mut row = LogRow {
             step: self.step,
