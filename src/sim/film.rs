@@ -19,16 +19,19 @@ pub const QUANTITIES: [(&str, usize, usize); 7] = [
 /// The pixel filter, applied by importance sampling: each sample lands at an offset from
 /// the pixel centre drawn from the filter and counts with weight one, as in Cycles, so
 /// pixels stay independent estimates and their variances stay exact.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PixelFilter {
     /// Uniform over the pixel's square.
     Box,
-    /// Blackman–Harris window with Cycles' width convention: support ±`width` px
-    /// (`width` 1.5 is Cycles' default filter).
+    /// Blackman–Harris window with Cycles' width convention: support ±`width` px.
     BlackmanHarris(f32),
-    /// Cycles' default: Blackman–Harris, width 1.5 px.
-    #[default]
-    Cycles,
+}
+
+/// Cycles' default: Blackman–Harris, width 1.5 px.
+impl Default for PixelFilter {
+    fn default() -> Self {
+        PixelFilter::BlackmanHarris(1.5)
+    }
 }
 
 impl PixelFilter {
@@ -37,7 +40,6 @@ impl PixelFilter {
         match self {
             PixelFilter::Box => "box".into(),
             PixelFilter::BlackmanHarris(w) => format!("blackman-harris:{w}"),
-            PixelFilter::Cycles => "blackman-harris:1.5".into(),
         }
     }
 
@@ -46,7 +48,7 @@ impl PixelFilter {
         let bad = || format!("pixel filter `{s}`: use box, blackman-harris or blackman-harris:WIDTH (0.5…4 px)");
         match s.split_once(':') {
             None if s == "box" => Ok(PixelFilter::Box),
-            None if s == "blackman-harris" => Ok(PixelFilter::Cycles),
+            None if s == "blackman-harris" => Ok(PixelFilter::default()),
             Some(("blackman-harris", w)) => match w.parse::<f32>() {
                 Ok(w) if (0.5..=4.0).contains(&w) => Ok(PixelFilter::BlackmanHarris(w)),
                 _ => Err(bad()),
@@ -57,10 +59,8 @@ impl PixelFilter {
 
     /// The sampler of offsets from the pixel centre.
     pub fn sampler(self) -> FilterSampler {
-        let width = match self {
-            PixelFilter::Box => return FilterSampler { half_width: 0.5, inverse_cdf: Vec::new() },
-            PixelFilter::BlackmanHarris(w) => w,
-            PixelFilter::Cycles => 1.5,
+        let PixelFilter::BlackmanHarris(width) = self else {
+            return FilterSampler { half_width: 0.5, inverse_cdf: Vec::new() };
         };
         // Tabulate the CDF over [−width, width] and invert it on a uniform grid.
         const N: usize = 1024;
@@ -216,7 +216,7 @@ mod tests {
 
     #[test]
     fn blackman_harris_offsets_follow_the_window_over_cycles_support() {
-        let s = PixelFilter::Cycles.sampler();
+        let s = PixelFilter::default().sampler();
         let n = 20_000;
         let xs: Vec<f32> = (0..n).map(|i| s.jitter((i as f32 + 0.5) / n as f32) - 0.5).collect();
         assert!(xs.iter().all(|x| x.abs() <= 1.5), "support ±1.5 px");
@@ -241,11 +241,11 @@ mod tests {
     fn box_jitter_is_the_uniform_itself_and_names_round_trip() {
         let s = PixelFilter::Box.sampler();
         assert_eq!(s.jitter(0.1), 0.1);
-        for f in [PixelFilter::Box, PixelFilter::Cycles, PixelFilter::BlackmanHarris(2.0)] {
+        for f in [PixelFilter::Box, PixelFilter::default(), PixelFilter::BlackmanHarris(2.0)] {
             let back = PixelFilter::parse(&f.name()).unwrap();
             assert_eq!(back.name(), f.name());
         }
-        assert_eq!(PixelFilter::parse("blackman-harris"), Ok(PixelFilter::Cycles));
+        assert_eq!(PixelFilter::parse("blackman-harris"), Ok(PixelFilter::BlackmanHarris(1.5)));
         let e = PixelFilter::parse("gauss").unwrap_err();
         assert!(e.contains("gauss") && e.contains("blackman-harris"), "{e}");
         assert!(PixelFilter::parse("blackman-harris:9").is_err());

@@ -65,7 +65,7 @@ impl RenderOptions {
     /// pixel filter 1.5 px wide and scrambled Sobol' points.
     pub fn production(width: usize, height: usize, checkpoints: Vec<u32>, sample_seed: u64) -> RenderOptions {
         RenderOptions {
-            filter: film::PixelFilter::Cycles,
+            filter: film::PixelFilter::default(),
             sampler: rng::Sampler::Sobol,
             ..RenderOptions::new(width, height, checkpoints, sample_seed)
         }

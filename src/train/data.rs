@@ -451,8 +451,9 @@ pub fn batch_augmented(
             crop(planes, fe.width, x0, y0, p, &mut patch);
             o.apply(&patch, p)
         });
+        // The patch's mean reference colour: what a firefly's gain multiplies.
+        let level = crops[2].iter().map(|&v| v as f64).sum::<f64>() / crops[2].len().max(1) as f64 + 0.01;
         for ff in aug.fireflies.iter().filter(|ff| ff.diffuse == (b == Branch::Diffuse)) {
-            let level = crops[2].iter().map(|&v| v as f64).sum::<f64>() / crops[2].len().max(1) as f64 + 0.01;
             let radiance = ff.gain * level as f32;
             let albedo_at = |c: usize| crops[1][c * p * p + ff.y * p + ff.x];
             add_firefly(&mut patch_input, &mut region, (ff.x, ff.y), (p, rf, rk), b, radiance, albedo_at);

@@ -338,9 +338,9 @@ mod tests {
 /// How to train.
 #[derive(Debug, Clone)]
 pub struct TrainOptions {
-    /// Phase-1 steps (each branch alone, L1 in its transformed domain).
+    /// Phase-1 steps (each branch alone, on its own target).
     pub phase1_steps: u64,
-    /// Phase-2 steps (both branches, L1 on the recomposed colour).
+    /// Phase-2 steps (both branches, on the recomposed colour).
     pub phase2_steps: u64,
     /// Patches per step.
     pub batch: usize,
