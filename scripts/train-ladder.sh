@@ -32,8 +32,12 @@ kpcn=$work/kpcn
 
 if [ ! -f "$work/data/manifest.csv" ]; then
     rm -rf "$work/data.partial"
+    # The data the shipped models were trained on: the first 8 families, sampled as the
+    # simulator first did (box filter, independent samples), before `slit` and the
+    # production-like defaults existed.
     nice -n 19 "$kpcn" dataset --count 6 --spp 4,16,64 --reference-spp 512 --resolution 320x180 \
-        -o "$work/data.partial" -q
+        --families cornell,interior,courtyard,product,glass,dof,firefly,corridor --pixel-filter box \
+        --sampler random -o "$work/data.partial" -q
     mv "$work/data.partial" "$work/data"
 fi
 
