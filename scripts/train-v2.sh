@@ -23,7 +23,10 @@
 #      8,000 + 2,000 steps, cosine schedule, lr 2e-4 / 5e-5, batch 4, 96-px patches
 #      (WORK/RUNG, about 33 min; models/segments/balanced-v2.safetensors);
 #   4. segment 2, from segment 1's weights: the same with --fireflies, 2,000 + 1,000 steps,
-#      lr 1e-4 / 3e-5 (WORK/RUNG-fireflies).
+#      lr 1e-4 / 3e-5 (WORK/RUNG-fireflies);
+#   5. segment 3, from segment 1's weights again: auto-exposed inputs (--exposure auto)
+#      and rarer, brighter fireflies (at most one a patch, 300-10,000x its mean),
+#      6,000 + 2,000 steps, lr 1e-4 / 3e-5 (WORK/RUNG-auto).
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
 # Neither segment is shipped yet (BENCHMARKS.md has why). To try one as the rung:
@@ -73,3 +76,8 @@ segment() {
 segment "$rung" "$ladder/$rung/model.safetensors" "${KPCN_STEPS:-8000}" "${KPCN_PHASE2_STEPS:-2000}" 2e-4 5e-5
 # Segment 2: fireflies added to the inputs (never the references) teach it to drop them.
 segment "$rung-fireflies" "$work/$rung/model.safetensors" 2000 1000 1e-4 3e-5 --fireflies
+# Segment 3: every frame seen at one exposure (a raw network denoises a 4x brighter
+# render worse); segment 2 cost detail on real renders, so outliers only where they are
+# surely noise (300x the patch's mean and up, one patch in two), for longer.
+segment "$rung-auto" "$work/$rung/model.safetensors" 6000 2000 1e-4 3e-5 \
+    --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300

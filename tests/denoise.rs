@@ -6,7 +6,7 @@ use kpcn::denoise::{Denoised, Denoiser, FileJob, FileOptions, Options};
 use kpcn::features::{EPSILON, Features, reflect};
 use kpcn::io::layout::{KpcnInputs, Mapping};
 use kpcn::io::{FrameBuffers, SampleFormat, WriteOptions};
-use kpcn::model::{Architecture, Design, Kind, Model};
+use kpcn::model::{Architecture, Design, Exposure, Kind, Model};
 use proptest::prelude::*;
 use std::path::Path;
 use std::process::Command;
@@ -24,6 +24,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             clamp: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
+            exposure: Default::default(),
         },
         3,
     )
@@ -32,6 +33,11 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
 
 fn tiny_ms() -> Model {
     tiny_multiscale(4)
+}
+
+/// `model` seeing auto-exposed radiance.
+fn auto_exposed(model: Model) -> Model {
+    Model { arch: Architecture { exposure: Exposure::Auto, ..model.arch }, ..model }
 }
 
 fn run(model: Model, k: &KpcnInputs, tile: Option<usize>, threads: usize) -> Denoised {
@@ -214,6 +220,39 @@ fn assert_diffuse_within_neighbourhood(d: &Denoised, k: &KpcnInputs, r: usize) {
             }
         }
     }
+}
+
+#[test]
+fn an_auto_exposed_model_denoises_a_brighter_frame_to_a_brighter_result() {
+    // Its inputs are scaled to one key whatever the render's exposure, and its output
+    // scaled back: a frame 8× (or 1/8×) as bright gives the same image 8× (1/8×) as bright,
+    // to rounding. A raw model does not (which is why the choice exists).
+    let k = frame(40, 36, 21, false);
+    let scaled = |k: &KpcnInputs, f: f32| {
+        let mut s = k.clone();
+        for p in s.color.iter_mut().chain(&mut s.diffuse).chain(&mut s.specular) {
+            p.iter_mut().for_each(|v| *v *= f);
+        }
+        for p in [&mut s.color_variance, &mut s.diffuse_variance, &mut s.specular_variance] {
+            p.iter_mut().for_each(|v| *v *= f * f);
+        }
+        s
+    };
+    let worst = |model: &Model, f: f32| {
+        let (base, bright) = (run(model.clone(), &k, None, 2), run(model.clone(), &scaled(&k, f), None, 2));
+        let mut m = 0f32;
+        for (a, b) in base.color.iter().flatten().zip(bright.color.iter().flatten()) {
+            m = m.max((b / f - a).abs() / (a.abs() + 1e-3));
+        }
+        m
+    };
+    for model in [auto_exposed(tiny_ms()), auto_exposed(tiny(Kind::Kpcn, 5))] {
+        for f in [8.0, 0.125] {
+            let e = worst(&model, f);
+            assert!(e < 1e-3, "{:?} ×{f}: {e}", model.arch);
+        }
+    }
+    assert!(worst(&tiny_ms(), 8.0) > 1e-2, "a raw model happens to be scale-invariant: the test proves nothing");
 }
 
 #[test]
@@ -491,7 +530,9 @@ fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
     fb.insert("depth.Z", SampleFormat::Float, depth).unwrap();
     let input = write(&fb, dir.path(), "in.exr");
     let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
-    for model in [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms(), tiny_multiscale_levels(4, 5)] {
+    for model in
+        [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms(), tiny_multiscale_levels(4, 5), auto_exposed(tiny_ms())]
+    {
         let whole = run(model.clone(), &k, Some(16), 2);
         // Multi-scale bands are rounded up to its pooling grid (4 rows).
         for band in [Some(1), Some(4), Some(7), None] {

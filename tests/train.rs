@@ -1,7 +1,7 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
 use kpcn::features::{Branch, Orientation};
-use kpcn::model::{Architecture, Design, Kind, Model};
+use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing};
 use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
 use kpcn::train::{Loss, TrainOptions, Trainer, l1};
 use std::path::Path;
@@ -49,7 +49,7 @@ fn options(steps: u64) -> TrainOptions {
         cosine: true,
         loss: Default::default(),
         augment: false,
-        fireflies: false,
+        fireflies: None,
     }
 }
 
@@ -65,6 +65,7 @@ fn tiny() -> Model {
             clamp: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
+            exposure: Default::default(),
         },
         1,
     )
@@ -110,7 +111,8 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
 
     // 4 + 2 steps straight through equal 3 steps, a checkpoint, a resume and 3 more
     // (phase 2 included), with the relative loss and augmentation.
-    let opts = || TrainOptions { loss: Loss::Relative, augment: true, fireflies: true, ..options(4) };
+    let opts =
+        || TrainOptions { loss: Loss::Relative, augment: true, fireflies: Some(Default::default()), ..options(4) };
     let mut straight = Trainer::new(&tiny(), &data, opts()).unwrap();
     while !straight.finished() {
         straight.train_step().unwrap();
@@ -207,6 +209,50 @@ fn fireflies_are_added_to_the_noisy_input_only() {
             Augmentation { orientation: Default::default(), fireflies: vec![Firefly { diffuse: !diffuse, ..ff }] };
         assert_eq!(v(&batch_augmented(&frames, &[(4, 4)], &[other], p, &arch, b).unwrap().input), a);
     }
+}
+
+#[test]
+fn auto_exposed_frames_train_on_targets_at_their_exposure_and_validate_as_rendered() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let raw = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let prep = Preprocessing { exposure: Exposure::Auto, ..Default::default() };
+    let auto = Dataset::load(dir.path(), 3, false, prep).unwrap();
+    let (fr, fa) = (&raw.train[0], &auto.train[0]);
+    let e = fa.features.exposure;
+    assert!(e > 0.0 && (e - 1.0).abs() > 0.05 && fr.features.exposure == 1.0, "{e}");
+    // Frames keep their references as rendered: validation compares the scaled-back output.
+    assert_eq!(fa.reference, fr.reference);
+    let arch = Architecture { exposure: Exposure::Auto, ..tiny().arch };
+    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let close = |a: f32, b: f32| (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs()));
+    for b in [Branch::Diffuse, Branch::Specular] {
+        let (r, a) = (batch(&[fr], &[(4, 4)], 8, &arch, b).unwrap(), batch(&[fa], &[(4, 4)], 8, &arch, b).unwrap());
+        let scale = |x: f32| match b {
+            Branch::Diffuse => x * e,
+            Branch::Specular => (e * x.exp_m1()).ln_1p(),
+        };
+        for (x, y) in v(&r.target).into_iter().zip(v(&a.target)) {
+            assert!(close(scale(x), y), "{b:?} target {x} → {y}");
+        }
+        for (x, y) in v(&r.reference).into_iter().zip(v(&a.reference)) {
+            assert!(close(x * e, y), "reference {x} → {y}");
+        }
+        // The noisy colour the kernels filter is at the same exposure as the targets.
+        for (x, y) in v(&r.noisy).into_iter().zip(v(&a.noisy)) {
+            assert!(close(scale(x), y), "{b:?} noisy {x} → {y}");
+        }
+        assert_eq!(v(&r.albedo), v(&a.albedo));
+    }
+    // Training and validation run; the validation error is of the scaled-back output.
+    let model = Model::xavier(arch, 1).unwrap();
+    let mut t = Trainer::new(&model, &auto, options(4)).unwrap();
+    for _ in 0..4 {
+        t.train_step().unwrap();
+    }
+    assert!(t.validate().unwrap().unwrap().mean.is_finite());
+    let m = t.model.snapshot("test").unwrap();
+    assert_eq!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.exposure, Exposure::Auto);
 }
 
 #[test]

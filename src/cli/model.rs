@@ -136,6 +136,11 @@ pub fn describe(m: &Model) {
         crate::model::Variances::Spatial => "3×3 spatial estimates, always (trained on them)",
     };
     println!("  variances     {variances}");
+    let exposure = match a.exposure {
+        crate::model::Exposure::Raw => "raw radiance, as rendered",
+        crate::model::Exposure::Auto => "auto (each frame scaled to a key of 0.18, the output scaled back)",
+    };
+    println!("  exposure      {exposure}");
     println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
     println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);
     println!("  description   {}", m.description);

@@ -3,9 +3,9 @@
 use super::model::{KindArg, Preset};
 use crate::eval::plot::write_png;
 use crate::kernel::ops::Ops;
-use crate::model::{Clamp, Model, Specular, Variances};
+use crate::model::{Clamp, Exposure, Model, Preprocessing, Specular, Variances};
 use crate::train::data::{CheckSet, Dataset};
-use crate::train::{CHECKPOINT, LogRow, Loss, TrainOptions, Trainer};
+use crate::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
 use crate::train::{curves, records};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -49,6 +49,11 @@ pub struct TrainArgs {
     /// Give it again with --resume.
     #[arg(long, value_enum, default_value_t = VariancesArg::File, value_name = "file|spatial")]
     pub variances: VariancesArg,
+    /// Radiance the network sees: `raw` (as rendered) or `auto` (each frame scaled so its
+    /// geometric-mean 16×16 block luminance is 0.18, as OIDN's autoexposure; the output is
+    /// scaled back). Recorded in the model. Give it again with --resume.
+    #[arg(long, value_enum, default_value_t = ExposureArg::Raw, value_name = "raw|auto")]
+    pub exposure: ExposureArg,
     /// Phase-1 steps: each branch alone, L1 in its transformed domain.
     #[arg(long, default_value_t = 1000, value_name = "N")]
     pub steps: u64,
@@ -81,12 +86,19 @@ pub struct TrainArgs {
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
     pub augment: bool,
-    /// Add up to 3 single-pixel fireflies (30–10,000× the patch's mean) to each patch's
-    /// noisy input, never to its reference, so the network learns to remove outliers that
-    /// a mean-seeking loss (`--loss relative`) would keep as light. Give it again with
-    /// --resume.
+    /// Add single-pixel fireflies (log-uniform from --firefly-min-gain to 10,000× the
+    /// patch's mean) to each patch's noisy input, never to its reference, so the network
+    /// learns to remove outliers that a mean-seeking loss (`--loss relative`) would keep as
+    /// light. Give it again with --resume, with the same --firefly-* values.
     #[arg(long)]
     pub fireflies: bool,
+    /// With --fireflies: each patch gets 0 to N of them, as many patches with each count.
+    #[arg(long, default_value_t = 3, value_name = "N", requires = "fireflies")]
+    pub firefly_most: u64,
+    /// With --fireflies: the dimmest, as a multiple of the patch's mean (default 10^1.5 ≈
+    /// 32). Brighter outliers are surer to be noise: real highlights reach 10²–10³.
+    #[arg(long, value_name = "GAIN", value_parser = firefly_gain, requires = "fireflies")]
+    pub firefly_min_gain: Option<f64>,
     /// Seed of initialisation and patch sampling: a run is reproducible from it.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -167,6 +179,15 @@ pub enum Schedule {
     Cosine,
 }
 
+/// `--exposure` values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ExposureArg {
+    /// Radiance as rendered.
+    Raw,
+    /// Each frame auto-exposed.
+    Auto,
+}
+
 /// `--variances` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum VariancesArg {
@@ -204,8 +225,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         VariancesArg::File => Variances::File,
         VariancesArg::Spatial => Variances::Spatial,
     };
-    let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, variances)?;
-    let dev = args.dev.as_deref().map(|d| CheckSet::load(d, variances)).transpose()?;
+    let exposure = match args.exposure {
+        ExposureArg::Raw => Exposure::Raw,
+        ExposureArg::Auto => Exposure::Auto,
+    };
+    let prep = Preprocessing { variances, exposure };
+    let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, prep)?;
+    let dev = args.dev.as_deref().map(|d| CheckSet::load(d, prep)).transpose()?;
     let opts = TrainOptions {
         phase1_steps: args.steps,
         phase2_steps: args.phase2_steps,
@@ -224,7 +250,10 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             LossArg::Relative => Loss::Relative,
         },
         augment: args.augment,
-        fireflies: args.fireflies,
+        fireflies: args.fireflies.then(|| {
+            let d = Fireflies::default();
+            Fireflies { most: args.firefly_most, min_decades: args.firefly_min_gain.map_or(d.min_decades, f64::log10) }
+        }),
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -233,6 +262,14 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
         // Steps logged after the checkpoint by an interrupted run are redone: drop them.
         // Rewritten in the current format: a log from an older kpcn gains the newer columns.
+        if t.model.base.arch.exposure != exposure {
+            bail!(
+                "{}: trained on {} radiance; resume with --exposure {}",
+                checkpoint.display(),
+                if exposure == Exposure::Auto { "raw" } else { "auto-exposed" },
+                if exposure == Exposure::Auto { "raw" } else { "auto" }
+            );
+        }
         if t.model.base.arch.variances != variances {
             bail!(
                 "{}: trained on {:?} variances; resume with --variances {}",
@@ -263,6 +300,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             };
         }
         model.arch.variances = variances;
+        model.arch.exposure = exposure;
         model.arch.validate("kpcn train")?;
         records::write_log(&log_path, &[])?;
         Trainer::new(&model, &data, opts.clone())?
@@ -409,4 +447,12 @@ pub fn run_curves(args: &CurvesArgs) -> anyhow::Result<()> {
     write_png(&curves::chart(&runs), &args.output, 900, 540)?;
     println!("{}", args.output.display());
     Ok(())
+}
+
+/// A firefly gain for `--firefly-min-gain`: 1 to 10⁴ times the patch's mean.
+fn firefly_gain(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(g) if (1.0..1e4).contains(&g) => Ok(g),
+        _ => Err(format!("{s:?}: give a multiple of the patch's mean from 1 to below 10000, such as 300")),
+    }
 }

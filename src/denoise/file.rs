@@ -7,7 +7,7 @@
 //! The result equals denoising the whole frame at once (tested bit for bit).
 
 use super::{DenoiseError, Denoised, Denoiser, Progress};
-use crate::features;
+use crate::features::{self, FrameStats};
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
 use std::path::{Path, PathBuf};
@@ -159,8 +159,9 @@ impl FileJob {
         let needed = self.mapping.channels();
         let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
 
-        // The depth scale is a whole-frame statistic: one pass over the depth channel.
-        let max_depth = if bands.len() == 1 { None } else { Some(self.max_depth(band)?) };
+        // The depth scale and the exposure are whole-frame statistics: one pass over the
+        // depth (and colour) channels first.
+        let whole = if bands.len() == 1 { None } else { Some(self.frame_stats(band, denoiser.auto_exposed())?) };
 
         // Output parts: the input's, each with its channels and name (a same-named channel
         // is replaced in place); the new layers join the part that holds the beauty. With
@@ -247,7 +248,7 @@ impl FileJob {
                         None => totals.push((name, range, r)),
                     }
                 }
-                let f = denoiser.features(std::borrow::Cow::Owned(inputs), max_depth);
+                let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
                 let d = denoiser
                     .denoise_rows(&f, a - c0..b - c0, &step)
@@ -271,20 +272,26 @@ impl FileJob {
         Ok(FileReport { repairs: totals })
     }
 
-    /// The largest finite depth of the whole frame, reading only the depth channels.
-    fn max_depth(&mut self, band: usize) -> Result<f32, FileError> {
-        let entry = self.mapping.entry_for(Quantity::Depth).clone();
-        let names = entry.mean_channels();
+    /// The largest finite depth of the whole frame and, when `exposure`, its exposure (of
+    /// the colour exactly as the network's inputs hold it), reading only the channels needed.
+    fn frame_stats(&mut self, band: usize, exposure: bool) -> Result<FrameStats, FileError> {
+        let depth = self.mapping.entry_for(Quantity::Depth).clone();
+        let names = if exposure { self.mapping.channels() } else { depth.mean_channels() };
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
-        let h = self.size().1;
+        let (w, h) = self.size();
         let mut m = 0f32;
+        let mut meter = features::ExposureMeter::new(w);
         for a in (0..h).step_by(band) {
             let fb: FrameBuffers = self.reader.read_band(Some(&names), a, a + band)?;
-            if let Some(depth) = entry.eval_mean(&fb).and_then(|mut v| v.pop()) {
+            if exposure {
+                let inputs = self.mapping.extract(&fb)?;
+                m = m.max(features::max_depth(&inputs.depth));
+                meter.add_rows(inputs.color.each_ref().map(Vec::as_slice));
+            } else if let Some(depth) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) {
                 m = m.max(features::max_depth(&depth));
             }
         }
-        Ok(m)
+        Ok(FrameStats { max_depth: m, exposure: if exposure { meter.exposure() } else { 1.0 } })
     }
 }
 

@@ -5,10 +5,10 @@
 //! threads (`&self`); the work runs in the denoiser's own rayon pool, so a host
 //! application's pool is left alone.
 
-use crate::features::{Branch, EPSILON, Features, INPUT_CHANNELS, sanitize};
+use crate::features::{Branch, EPSILON, Features, FrameStats, INPUT_CHANNELS, sanitize};
 use crate::io::layout::KpcnInputs;
 use crate::kernel;
-use crate::model::{Design, Kind, Model, ModelError, Specular, Variances};
+use crate::model::{Design, Exposure, Kind, Model, ModelError, Specular};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 use std::borrow::Cow;
@@ -151,22 +151,19 @@ impl Denoiser {
         self.denoise_features(&self.features(Cow::Borrowed(inputs), None), progress)
     }
 
-    /// Preprocesses `inputs` in this denoiser's threads; `max_depth` is the whole frame's
-    /// largest finite depth when `inputs` is a band of it. Owned inputs are changed in
-    /// place where the model needs it; borrowed ones are copied only then.
-    pub fn features(&self, inputs: Cow<'_, KpcnInputs>, max_depth: Option<f32>) -> Features {
+    /// Preprocesses `inputs` in this denoiser's threads; `whole` holds the whole frame's
+    /// statistics when `inputs` is a band of it ([`Denoiser::exposure`] for its exposure).
+    /// Owned inputs are changed in place where the model needs it; borrowed ones are copied
+    /// only then.
+    pub fn features(&self, inputs: Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
         // A model trained on spatial estimates gets them, whatever the file holds.
-        let inputs = if self.model.arch.variances == Variances::Spatial {
-            let mut i = inputs.into_owned();
-            i.estimate_variances_spatially();
-            Cow::Owned(i)
-        } else {
-            inputs
-        };
-        self.pool.install(|| match max_depth {
-            Some(m) => Features::with_max_depth(&inputs, m),
-            None => Features::new(&inputs),
-        })
+        self.pool.install(|| self.model.arch.preprocessing().features(inputs, whole))
+    }
+
+    /// Whether the model sees auto-exposed radiance, so that a streamed frame's exposure
+    /// must be measured over the whole frame first.
+    pub fn auto_exposed(&self) -> bool {
+        self.model.arch.exposure == Exposure::Auto
     }
 
     /// Denoises already preprocessed features (the trainer validates this way).
@@ -214,7 +211,7 @@ impl Denoiser {
             }
         }
         let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
-        Ok(recompose(&albedo, &d_hat, &s_hat, w, h, self.model.arch.specular))
+        Ok(recompose(&albedo, &d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure))
     }
 
     /// Context rows (or columns) a pixel's result depends on beyond the pixel itself:
@@ -286,19 +283,22 @@ impl Denoiser {
     }
 }
 
-/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), and
-/// their sum, all finite.
+/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), both
+/// divided by the inputs' `exposure`, and their sum, all finite.
 fn recompose(
     albedo: &[Vec<f32>; 3],
     d_hat: &[Vec<f32>; 3],
     s_hat: &[Vec<f32>; 3],
-    w: usize,
-    h: usize,
+    (w, h): (usize, usize),
     domain: Specular,
+    exposure: f32,
 ) -> Denoised {
-    let diffuse: [Vec<f32>; 3] =
-        std::array::from_fn(|c| d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d)).collect());
-    let specular: [Vec<f32>; 3] = std::array::from_fn(|c| s_hat[c].iter().map(|&s| domain.radiance(s)).collect());
+    // Division by exactly 1 changes nothing, so raw models keep their images bit for bit.
+    let diffuse: [Vec<f32>; 3] = std::array::from_fn(|c| {
+        d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize(sanitize((a + EPSILON) * d) / exposure)).collect()
+    });
+    let specular: [Vec<f32>; 3] =
+        std::array::from_fn(|c| s_hat[c].iter().map(|&s| sanitize(domain.radiance(s) / exposure)).collect());
     let color = std::array::from_fn(|c| diffuse[c].iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
     Denoised { width: w, height: h, color, diffuse, specular }
 }

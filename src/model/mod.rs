@@ -5,7 +5,8 @@
 //! fed with a halo of [`Architecture::feature_radius`]). KPCN's last layer predicts
 //! `kernel_size²` weights per pixel, DPCN's 3 colours.
 
-use crate::features::{INPUT_CHANNELS, INPUT_LAYOUT};
+use crate::features::{self, Features, FrameStats, INPUT_CHANNELS, INPUT_LAYOUT};
+use crate::io::layout::KpcnInputs;
 use candle_core::{DType, Device, Tensor};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -74,6 +75,52 @@ pub struct Architecture {
     pub variances: Variances,
     /// What the specular branch's kernels filter.
     pub specular: Specular,
+    /// How the radiance inputs are scaled before the network sees them.
+    pub exposure: Exposure,
+}
+
+/// How a model's radiance inputs are scaled (`kpcn:exposure`). Convolutions with biases
+/// and ReLUs are not scale-invariant: a frame rendered 4× brighter is denoised worse
+/// (BENCHMARKS.md, "Exposure"). The output is scaled back, so the choice never changes
+/// the output's units.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Exposure {
+    /// As rendered.
+    #[default]
+    Raw,
+    /// Scaled so that the frame's key (the geometric mean of its 16×16 block luminances,
+    /// [`crate::features::ExposureMeter`]) is 0.18, as OIDN's autoexposure does.
+    Auto,
+}
+
+/// What a model's inputs are made from, beyond the file: what training must prepare alike.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Preprocessing {
+    /// The variance features.
+    pub variances: Variances,
+    /// The radiance scale.
+    pub exposure: Exposure,
+}
+
+impl Preprocessing {
+    /// The features of `inputs` as such a model sees them (the one place inference and
+    /// training make them); `whole` holds the whole frame's statistics when `inputs` is a
+    /// band of it. Owned inputs are changed in place where needed; borrowed ones are copied
+    /// only then.
+    pub fn features(self, inputs: std::borrow::Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
+        let inputs = if self.variances == Variances::Spatial {
+            let mut i = inputs.into_owned();
+            i.estimate_variances_spatially();
+            std::borrow::Cow::Owned(i)
+        } else {
+            inputs
+        };
+        let whole = whole.unwrap_or_else(|| FrameStats {
+            max_depth: features::max_depth(&inputs.depth),
+            exposure: if self.exposure == Exposure::Auto { features::auto_exposure(&inputs) } else { 1.0 },
+        });
+        Features::exposed(&inputs, whole.max_depth, whole.exposure)
+    }
 }
 
 /// The values the specular branch's kernels filter (`kpcn:specular`). The network always
@@ -207,6 +254,11 @@ pub enum ModelError {
 }
 
 impl Architecture {
+    /// What the model's inputs are made from.
+    pub fn preprocessing(&self) -> Preprocessing {
+        Preprocessing { variances: self.variances, exposure: self.exposure }
+    }
+
     /// The paper's configuration: 9 layers, 100 channels, 5×5 convolutions, 21×21 kernels.
     pub fn paper(kind: Kind) -> Self {
         Architecture {
@@ -219,6 +271,7 @@ impl Architecture {
             clamp: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
+            exposure: Default::default(),
         }
     }
 
@@ -234,6 +287,7 @@ impl Architecture {
             clamp: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
+            exposure: Default::default(),
         }
     }
 
@@ -251,6 +305,7 @@ impl Architecture {
             clamp: Clamp::Spread,
             variances: Variances::File,
             specular: Specular::Log,
+            exposure: Default::default(),
         }
     }
 
@@ -410,6 +465,7 @@ impl Architecture {
             ("kpcn:clamp", (if self.clamp == Clamp::Spread { "spread" } else { "hard" }).to_string()),
             ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
             ("kpcn:specular", (if self.specular == Specular::Linear { "linear" } else { "log" }).to_string()),
+            ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -465,6 +521,12 @@ impl Architecture {
                 None | Some("log") => Specular::Log,
                 Some("linear") => Specular::Linear,
                 Some(other) => return Err(err(format!("unknown specular domain `{other}`"))),
+            },
+            // Files from before the choice see raw radiance.
+            exposure: match m.get("kpcn:exposure").map(String::as_str) {
+                None | Some("raw") => Exposure::Raw,
+                Some("auto") => Exposure::Auto,
+                Some(other) => return Err(err(format!("unknown exposure `{other}`"))),
             },
         };
         a.validate(origin)?;
@@ -706,6 +768,7 @@ mod tests {
             clamp: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
+            exposure: Default::default(),
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -752,6 +815,7 @@ mod tests {
                 clamp: Default::default(),
                 variances: Default::default(),
                 specular: Default::default(),
+                exposure: Default::default(),
             },
             7,
         )

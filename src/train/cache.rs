@@ -78,6 +78,8 @@ pub fn store(path: &Path, key: &str, frame: &Frame) -> Result<(), DataError> {
         ("spp".to_string(), frame.spp.to_string()),
         ("width".to_string(), frame.features.width.to_string()),
         ("height".to_string(), frame.features.height.to_string()),
+        // Its bits, so that the cached frame equals the fresh one exactly.
+        ("exposure".to_string(), frame.features.exposure.to_bits().to_string()),
     ]);
     let bytes = safetensors::serialize(tensors.iter().map(|(n, t)| (n.as_str(), t)), Some(meta))
         .map_err(|e| ModelError::Format { origin: path.display().to_string(), what: e.to_string() })?;
@@ -124,6 +126,11 @@ pub fn load(path: &Path, key: &str) -> Option<Frame> {
         normal_variance: plane("normal_variance")?,
         albedo_variance: plane("albedo_variance")?,
         depth_variance: plane("depth_variance")?,
+        // Files from before auto-exposed models hold raw features.
+        exposure: match meta.get("exposure") {
+            Some(bits) => f32::from_bits(bits.parse().ok()?),
+            None => 1.0,
+        },
     };
     Some(Frame::from_parts(
         meta.get("scene")?.clone(),

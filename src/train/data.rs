@@ -4,7 +4,7 @@
 use crate::features::{Branch, EPSILON, Features, Orientation, log_specular, sanitize};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
-use crate::model::{Architecture, ModelError, Variances};
+use crate::model::{Architecture, Exposure, ModelError, Preprocessing, Variances};
 use crate::rng::SplitMix64;
 use candle_core::Tensor;
 use std::path::{Path, PathBuf};
@@ -182,7 +182,8 @@ pub fn importance(k: &KpcnInputs, passes: usize) -> Vec<f32> {
 }
 
 impl Frame {
-    fn new(scene: String, spp: u32, noisy: &KpcnInputs, reference: &KpcnInputs) -> Frame {
+    /// The frame of `noisy` (its `features` as the model sees them) and `reference`.
+    fn new(scene: String, spp: u32, noisy: &KpcnInputs, features: Features, reference: &KpcnInputs) -> Frame {
         let target_d = std::array::from_fn(|c| {
             reference.diffuse[c]
                 .iter()
@@ -203,7 +204,7 @@ impl Frame {
         Frame {
             scene,
             spp,
-            features: Features::new(noisy),
+            features,
             target_d,
             target_s,
             reference: clean_colour(reference),
@@ -245,10 +246,10 @@ impl Frame {
 impl Dataset {
     /// Loads the frames of a `kpcn dataset` folder; every `holdout_every`-th scene (in name
     /// order) is held out whole for validation. With `cache`, preprocessed frames are read
-    /// from and written to `DIR/cache/` (see [`super::cache`]). `variances` picks the noisy
-    /// frames' variance features: the files' own, or the spatial estimates a file without
-    /// variances gets at inference.
-    pub fn load(dir: &Path, holdout_every: usize, cache: bool, variances: Variances) -> Result<Dataset, DataError> {
+    /// from and written to `DIR/cache/` (see [`super::cache`]). `prep` makes the noisy
+    /// frames' features as the model to train sees them: the files' own variances or the
+    /// spatial estimates a file without variances gets at inference; raw or auto-exposed.
+    pub fn load(dir: &Path, holdout_every: usize, cache: bool, prep: Preprocessing) -> Result<Dataset, DataError> {
         let path = dir.join("manifest.csv");
         let manifest =
             super::records::read_manifest(&path).map_err(|e| DataError::Manifest { path: path.clone(), msg: e.msg })?;
@@ -270,8 +271,9 @@ impl Dataset {
         for (scene, spp, noisy, reference) in rows {
             let key = cache.then(|| super::cache::key(&noisy, &reference)).flatten();
             let stem = noisy.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-            let suffix = if variances == Variances::Spatial { "-spatial" } else { "" };
-            let cache_path = dir.join("cache").join(format!("{stem}{suffix}.safetensors"));
+            let spatial = if prep.variances == Variances::Spatial { "-spatial" } else { "" };
+            let exposed = if prep.exposure == Exposure::Auto { "-auto" } else { "" };
+            let cache_path = dir.join("cache").join(format!("{stem}{spatial}{exposed}.safetensors"));
             let cached = key.as_ref().and_then(|k| super::cache::load(&cache_path, k));
             let frame = match cached {
                 Some(f) => {
@@ -284,10 +286,12 @@ impl Dataset {
                     }
                     let r = &reference_cache.as_ref().expect("just set").1;
                     let mut n = inputs(&noisy)?;
-                    if variances == Variances::Spatial {
+                    // Patches are chosen on the variances the model sees.
+                    if prep.variances == Variances::Spatial {
                         n.estimate_variances_spatially();
                     }
-                    let f = Frame::new(scene.clone(), spp, &n, r);
+                    let features = prep.features(std::borrow::Cow::Borrowed(&n), None);
+                    let f = Frame::new(scene.clone(), spp, &n, features, r);
                     if let Some(k) = &key {
                         // A read-only dataset still trains, only without the speed-up.
                         let _ = super::cache::store(&cache_path, k, &f);
@@ -320,10 +324,10 @@ pub struct CheckFrame {
 }
 
 impl CheckSet {
-    /// Reads every noisy frame in `dir` that has a reference; `variances` as for
+    /// Reads every noisy frame in `dir` that has a reference; `prep` as for
     /// [`Dataset::load`]. A folder without any such frame is an error that says what it
     /// looks for.
-    pub fn load(dir: &Path, variances: Variances) -> Result<CheckSet, DataError> {
+    pub fn load(dir: &Path, prep: Preprocessing) -> Result<CheckSet, DataError> {
         let err = |msg: String| DataError::Check { path: dir.into(), msg };
         let entries = std::fs::read_dir(dir).map_err(|e| err(e.to_string()))?;
         let mut noisy: Vec<(String, PathBuf)> = entries
@@ -343,12 +347,9 @@ impl CheckSet {
         let frames = noisy
             .into_iter()
             .map(|(name, reference)| {
-                let mut n = inputs(&dir.join(&name))?;
-                if variances == Variances::Spatial {
-                    n.estimate_variances_spatially();
-                }
+                let features = prep.features(std::borrow::Cow::Owned(inputs(&dir.join(&name))?), None);
                 let r = inputs(&reference)?;
-                Ok(CheckFrame { name, features: Features::new(&n), reference: clean_colour(&r) })
+                Ok(CheckFrame { name, features, reference: clean_colour(&r) })
             })
             .collect::<Result<_, DataError>>()?;
         Ok(CheckSet { frames })
@@ -451,6 +452,15 @@ pub fn batch_augmented(
             crop(planes, fe.width, x0, y0, p, &mut patch);
             o.apply(&patch, p)
         });
+        // The targets at the inputs' exposure (frames keep them as rendered, for validation).
+        let e = fe.exposure;
+        if e != 1.0 {
+            match b {
+                Branch::Diffuse => crops[0].iter_mut().for_each(|v| *v = sanitize(*v * e)),
+                Branch::Specular => crops[0].iter_mut().for_each(|v| *v = sanitize((e * v.exp_m1()).ln_1p())),
+            }
+            crops[2].iter_mut().for_each(|v| *v = sanitize(*v * e));
+        }
         // The patch's mean reference colour: what a firefly's gain multiplies.
         let level = crops[2].iter().map(|&v| v as f64).sum::<f64>() / crops[2].len().max(1) as f64 + 0.01;
         for ff in aug.fireflies.iter().filter(|ff| ff.diffuse == (b == Branch::Diffuse)) {

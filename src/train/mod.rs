@@ -309,7 +309,7 @@ mod tests {
             cosine: true,
             loss: Loss::L1,
             augment: false,
-            fireflies: false,
+            fireflies: None,
         };
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(o.learning_rate(1), 1e-3));
@@ -367,8 +367,25 @@ pub struct TrainOptions {
     pub loss: Loss,
     /// Each patch in one of the square's eight orientations, drawn at random.
     pub augment: bool,
-    /// Up to 3 fireflies added to each patch's noisy input (never to its reference).
-    pub fireflies: bool,
+    /// Fireflies added to each patch's noisy input (never to its reference), if any.
+    pub fireflies: Option<Fireflies>,
+}
+
+/// How many fireflies `--fireflies` adds to a patch, and how bright.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fireflies {
+    /// Each patch gets 0 to `most` of them, as many patches with each count.
+    pub most: u64,
+    /// The dimmest as a power of ten of the patch's mean; the brightest is 10⁴ of it, and
+    /// the gain is log-uniform in between.
+    pub min_decades: f64,
+}
+
+impl Default for Fireflies {
+    /// Up to 3 per patch, 10^1.5 (≈ 32) to 10⁴ times the patch's mean.
+    fn default() -> Self {
+        Fireflies { most: 3, min_decades: 1.5 }
+    }
 }
 
 /// Where a cosine schedule ends, as a fraction of the phase's starting rate.
@@ -541,11 +558,10 @@ impl<'a> Trainer<'a> {
             if self.opts.augment {
                 aug.orientation = Orientation::from_index(self.rng.next_u64() % 8);
             }
-            if self.opts.fireflies {
-                for _ in 0..self.rng.next_u64() % 4 {
+            if let Some(ff) = self.opts.fireflies {
+                for _ in 0..self.rng.next_u64() % (ff.most + 1) {
                     let (x, y) = ((self.rng.next_u64() % p as u64) as usize, (self.rng.next_u64() % p as u64) as usize);
-                    // 30 to 10,000 times the patch's mean brightness.
-                    let gain = 10f64.powf(1.5 + 2.5 * self.rng.uniform_f64()) as f32;
+                    let gain = 10f64.powf(ff.min_decades + (4.0 - ff.min_decades) * self.rng.uniform_f64()) as f32;
                     let diffuse = self.rng.next_u64().is_multiple_of(2);
                     aug.fireflies.push(data::Firefly { x, y, gain, diffuse });
                 }

@@ -118,6 +118,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         clamp: Default::default(),
         variances: Default::default(),
         specular: Default::default(),
+        exposure: Default::default(),
     };
     Model::xavier(arch, seed).unwrap()
 }
