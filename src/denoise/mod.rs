@@ -152,7 +152,7 @@ impl Denoiser {
     }
 
     /// Preprocesses `inputs` in this denoiser's threads; `whole` holds the whole frame's
-    /// statistics when `inputs` is a band of it ([`Denoiser::exposure`] for its exposure).
+    /// statistics when `inputs` is a band of it (measured when [`Denoiser::auto_exposed`]).
     /// Owned inputs are changed in place where the model needs it; borrowed ones are copied
     /// only then.
     pub fn features(&self, inputs: Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
