@@ -311,6 +311,35 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
         "-q",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // An auto-exposed fine-tune of it records the choice, its own fine-tune inherits it,
+    // and a resume that forgets it is refused with the fix.
+    let (auto, again) = (dir.path().join("auto"), dir.path().join("again"));
+    let tune = |out: &Path, extra: &[&str]| {
+        let init = [
+            "train",
+            "--data",
+            d,
+            "-o",
+            out.to_str().unwrap(),
+            "--steps",
+            "1",
+            "--holdout",
+            "3",
+            "--patch",
+            "16",
+            "-q",
+        ];
+        kpcn(&[&init[..], extra].concat())
+    };
+    let out = tune(&auto, &["--init", model.to_str().unwrap(), "--exposure", "auto"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let auto_model = auto.join("model.safetensors");
+    assert_eq!(Model::load(&auto_model).unwrap().arch.exposure, Exposure::Auto);
+    assert!(tune(&again, &["--init", auto_model.to_str().unwrap()]).status.success());
+    assert_eq!(Model::load(&again.join("model.safetensors")).unwrap().arch.exposure, Exposure::Auto);
+    let out = tune(&auto, &["--resume"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--exposure auto"), "{err}");
 }
 
 /// Every file under `dir`.

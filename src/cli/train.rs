@@ -51,9 +51,10 @@ pub struct TrainArgs {
     pub variances: VariancesArg,
     /// Radiance the network sees: `raw` (as rendered) or `auto` (each frame scaled so its
     /// geometric-mean 16×16 block luminance is 0.18, as OIDN's autoexposure; the output is
-    /// scaled back). Recorded in the model. Give it again with --resume.
-    #[arg(long, value_enum, default_value_t = ExposureArg::Raw, value_name = "raw|auto")]
-    pub exposure: ExposureArg,
+    /// scaled back). Recorded in the model. Default: the --init model's, else raw. Give it
+    /// again with --resume.
+    #[arg(long, value_enum, value_name = "raw|auto")]
+    pub exposure: Option<ExposureArg>,
     /// Phase-1 steps: each branch alone, L1 in its transformed domain.
     #[arg(long, default_value_t = 1000, value_name = "N")]
     pub steps: u64,
@@ -225,9 +226,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         VariancesArg::File => Variances::File,
         VariancesArg::Spatial => Variances::Spatial,
     };
-    let exposure = match args.exposure {
-        ExposureArg::Raw => Exposure::Raw,
-        ExposureArg::Auto => Exposure::Auto,
+    let exposure = match (args.exposure, &args.init) {
+        (Some(ExposureArg::Raw), _) => Exposure::Raw,
+        (Some(ExposureArg::Auto), _) => Exposure::Auto,
+        (None, Some(init)) if !args.resume => Model::load(init)?.arch.exposure,
+        (None, _) => Exposure::Raw,
     };
     let prep = Preprocessing { variances, exposure };
     let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, prep)?;
@@ -260,16 +263,6 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let mut trainer = if args.resume {
         let t = Trainer::resume(&checkpoint, &data, opts.clone())
             .with_context(|| format!("{}: cannot resume (drop --resume to start afresh)", checkpoint.display()))?;
-        // Steps logged after the checkpoint by an interrupted run are redone: drop them.
-        // Rewritten in the current format: a log from an older kpcn gains the newer columns.
-        if t.model.base.arch.exposure != exposure {
-            bail!(
-                "{}: trained on {} radiance; resume with --exposure {}",
-                checkpoint.display(),
-                if exposure == Exposure::Auto { "raw" } else { "auto-exposed" },
-                if exposure == Exposure::Auto { "raw" } else { "auto" }
-            );
-        }
         if t.model.base.arch.variances != variances {
             bail!(
                 "{}: trained on {:?} variances; resume with --variances {}",
@@ -278,6 +271,16 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
                 if variances == Variances::File { "spatial" } else { "file" }
             );
         }
+        if t.model.base.arch.exposure != exposure {
+            bail!(
+                "{}: trained on {} radiance; resume with --exposure {}",
+                checkpoint.display(),
+                if exposure == Exposure::Auto { "raw" } else { "auto-exposed" },
+                if exposure == Exposure::Auto { "raw" } else { "auto" }
+            );
+        }
+        // Steps logged after the checkpoint by an interrupted run are redone: drop them.
+        // Rewritten in the current format: a log from an older kpcn gains the newer columns.
         let mut rows = records::read_log(&std::fs::read_to_string(&log_path).unwrap_or_default());
         rows.retain(|r| r.step <= t.step);
         records::write_log(&log_path, &rows)?;
