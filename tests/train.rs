@@ -1,6 +1,6 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
-use kpcn::features::{Branch, Orientation};
+use kpcn::features::{Branch, ChannelOrder, Orientation};
 use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing};
 use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
 use kpcn::train::{Loss, TrainOptions, Trainer, l1};
@@ -50,6 +50,7 @@ fn options(steps: u64) -> TrainOptions {
         loss: Default::default(),
         augment: false,
         fireflies: None,
+        permute_channels: false,
     }
 }
 
@@ -111,8 +112,13 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
 
     // 4 + 2 steps straight through equal 3 steps, a checkpoint, a resume and 3 more
     // (phase 2 included), with the relative loss and augmentation.
-    let opts =
-        || TrainOptions { loss: Loss::Relative, augment: true, fireflies: Some(Default::default()), ..options(4) };
+    let opts = || TrainOptions {
+        loss: Loss::Relative,
+        augment: true,
+        fireflies: Some(Default::default()),
+        permute_channels: true,
+        ..options(4)
+    };
     let mut straight = Trainer::new(&tiny(), &data, opts()).unwrap();
     while !straight.finished() {
         straight.train_step().unwrap();
@@ -136,6 +142,36 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
 }
 
 #[test]
+fn a_channel_ordered_batch_is_the_batch_with_its_planes_reordered() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let frames: Vec<_> = data.train.iter().take(1).collect();
+    let arch = tiny().arch;
+    let (p, (rf, rk)) = (8, arch.train_margins());
+    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let order = ChannelOrder::from_index(4);
+    let aug = Augmentation { channels: order, ..Default::default() };
+    for b in [Branch::Diffuse, Branch::Specular] {
+        let plain = batch(&frames, &[(4, 4)], p, &arch, b).unwrap();
+        let swapped = batch_augmented(&frames, &[(4, 4)], std::slice::from_ref(&aug), p, &arch, b).unwrap();
+        for (a, s, side) in [
+            (&plain.target, &swapped.target, p),
+            (&plain.albedo, &swapped.albedo, p),
+            (&plain.reference, &swapped.reference, p),
+            (&plain.noisy, &swapped.noisy, p + 2 * rk),
+            (&plain.input, &swapped.input, p + 2 * rf),
+        ] {
+            let (a, s) = (v(a), v(s));
+            let n = side * side;
+            for (c, &from) in order.0.iter().enumerate() {
+                assert_eq!(s[c * n..(c + 1) * n], a[from * n..(from + 1) * n], "{b:?} plane {c}");
+            }
+        }
+    }
+}
+
+#[test]
 fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
@@ -146,7 +182,7 @@ fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
     let (p, rk) = (8, arch.train_margins().1);
     let o = [Orientation::from_index(5), Orientation::from_index(2)];
     let augs: Vec<Augmentation> =
-        o.iter().map(|&orientation| Augmentation { orientation, fireflies: vec![] }).collect();
+        o.iter().map(|&orientation| Augmentation { orientation, ..Default::default() }).collect();
     for b in [Branch::Diffuse, Branch::Specular] {
         let plain = batch(&frames, &origins, p, &arch, b).unwrap();
         let turned = batch_augmented(&frames, &origins, &augs, p, &arch, b).unwrap();
@@ -183,7 +219,7 @@ fn fireflies_are_added_to_the_noisy_input_only() {
     let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     for (b, diffuse) in [(Branch::Diffuse, true), (Branch::Specular, false)] {
         let ff = Firefly { x: 3, y: 5, gain: 1000.0, diffuse };
-        let aug = Augmentation { orientation: Default::default(), fireflies: vec![ff] };
+        let aug = Augmentation { fireflies: vec![ff], ..Default::default() };
         let plain = batch(&frames, &[(4, 4)], p, &arch, b).unwrap();
         let hit = batch_augmented(&frames, &[(4, 4)], &[aug], p, &arch, b).unwrap();
         for (a, h) in [(&plain.target, &hit.target), (&plain.albedo, &hit.albedo), (&plain.reference, &hit.reference)] {
@@ -205,8 +241,7 @@ fn fireflies_are_added_to_the_noisy_input_only() {
         assert!(nh[(5 + rk) * sn + 3 + rk] > na[(5 + rk) * sn + 3 + rk]);
         assert_eq!(na.iter().zip(&nh).filter(|(x, y)| x != y).count(), 3);
         // A firefly of the other branch leaves this one alone.
-        let other =
-            Augmentation { orientation: Default::default(), fireflies: vec![Firefly { diffuse: !diffuse, ..ff }] };
+        let other = Augmentation { fireflies: vec![Firefly { diffuse: !diffuse, ..ff }], ..Default::default() };
         assert_eq!(v(&batch_augmented(&frames, &[(4, 4)], &[other], p, &arch, b).unwrap().input), a);
     }
 }

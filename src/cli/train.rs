@@ -87,6 +87,11 @@ pub struct TrainArgs {
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
     pub augment: bool,
+    /// Show each patch with its colour channels in one of the 6 orders, at random (colour,
+    /// albedo and reference alike), so no hue is learnt as special. Give it again with
+    /// --resume.
+    #[arg(long)]
+    pub permute_channels: bool,
     /// Add single-pixel fireflies (log-uniform from --firefly-min-gain to 10,000× the
     /// patch's mean) to each patch's noisy input, never to its reference, so the network
     /// learns to remove outliers that a mean-seeking loss (`--loss relative`) would keep as
@@ -257,6 +262,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             let d = Fireflies::default();
             Fireflies { most: args.firefly_most, min_decades: args.firefly_min_gain.map_or(d.min_decades, f64::log10) }
         }),
+        permute_channels: args.permute_channels,
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -403,12 +409,15 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         args.lr_phase2,
         args.schedule,
         args.loss,
-        match (args.augment, args.fireflies) {
-            (true, true) => ", augmented, fireflies added",
-            (true, false) => ", augmented",
-            (false, true) => ", fireflies added",
-            (false, false) => "",
-        },
+        [
+            (args.augment, ", oriented"),
+            (args.permute_channels, ", channels permuted"),
+            (args.fireflies, ", fireflies added"),
+            (a.exposure == Exposure::Auto, ", auto-exposed"),
+        ]
+        .iter()
+        .filter_map(|&(on, what)| on.then_some(what))
+        .collect::<String>(),
         args.seed,
         if opts.importance { "importance" } else { "uniform" },
         args.data.display(),

@@ -1,7 +1,7 @@
 //! Training data: frames listed in a `kpcn dataset` manifest, their reference targets, an
 //! importance map, and batches of patches.
 
-use crate::features::{Branch, EPSILON, Features, Orientation, log_specular, sanitize};
+use crate::features::{Branch, ChannelOrder, EPSILON, Features, Orientation, log_specular, sanitize};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
 use crate::model::{Architecture, Exposure, ModelError, Preprocessing, Variances};
@@ -370,7 +370,7 @@ pub struct Batch {
     pub reference: Tensor,
 }
 
-fn crop(planes: &[Vec<f32>; 3], w: usize, x0: usize, y0: usize, p: usize, out: &mut Vec<f32>) {
+fn crop(planes: [&Vec<f32>; 3], w: usize, x0: usize, y0: usize, p: usize, out: &mut Vec<f32>) {
     for plane in planes {
         for y in y0..y0 + p {
             out.extend_from_slice(&plane[y * w + x0..y * w + x0 + p]);
@@ -409,6 +409,8 @@ pub struct Firefly {
 pub struct Augmentation {
     /// Mirrored and/or transposed.
     pub orientation: Orientation,
+    /// Colour channels reordered (colour, albedo and references alike).
+    pub channels: ChannelOrder,
     /// Outliers added to the noisy input.
     pub fireflies: Vec<Firefly>,
 }
@@ -432,16 +434,11 @@ pub fn batch_augmented(
         let aug = augmentations.get(i).unwrap_or(&none);
         let o = aug.orientation;
         let fe = &f.features;
-        let mut patch_input =
-            fe.branch_input_oriented(b, x0 as isize - rf as isize, y0 as isize - rf as isize, p + 2 * rf, o);
-        let c = fe.colour(b);
-        let region = fe.region(
-            &crate::eval::rgb(c),
-            x0 as isize - rk as isize,
-            y0 as isize - rk as isize,
-            p + 2 * rk,
-            p + 2 * rk,
-        );
+        let order = aug.channels;
+        let corner = (x0 as isize - rf as isize, y0 as isize - rf as isize);
+        let mut patch_input = fe.branch_input_oriented(b, corner, p + 2 * rf, o, order);
+        let c = order.pick(fe.colour(b)).map(Vec::as_slice);
+        let region = fe.region(&c, x0 as isize - rk as isize, y0 as isize - rk as isize, p + 2 * rk, p + 2 * rk);
         let mut region = o.apply(&region, p + 2 * rk);
         let t = match b {
             Branch::Diffuse => &f.target_d,
@@ -449,7 +446,7 @@ pub fn batch_augmented(
         };
         let mut crops = [t, &fe.albedo, &f.reference].map(|planes| {
             let mut patch = Vec::with_capacity(3 * p * p);
-            crop(planes, fe.width, x0, y0, p, &mut patch);
+            crop(order.pick(planes), fe.width, x0, y0, p, &mut patch);
             o.apply(&patch, p)
         });
         // The targets at the inputs' exposure (frames keep them as rendered, for validation).

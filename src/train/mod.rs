@@ -11,7 +11,7 @@ pub mod curves;
 pub mod data;
 pub mod records;
 
-use crate::features::{Branch, EPSILON, Orientation};
+use crate::features::{Branch, ChannelOrder, EPSILON, Orientation};
 use crate::kernel::ops::Ops;
 #[cfg(doc)]
 use crate::model::Architecture;
@@ -310,6 +310,7 @@ mod tests {
             loss: Loss::L1,
             augment: false,
             fireflies: None,
+            permute_channels: false,
         };
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(o.learning_rate(1), 1e-3));
@@ -369,6 +370,8 @@ pub struct TrainOptions {
     pub augment: bool,
     /// Fireflies added to each patch's noisy input (never to its reference), if any.
     pub fireflies: Option<Fireflies>,
+    /// Each patch's colour channels in one of the six orders, drawn at random.
+    pub permute_channels: bool,
 }
 
 /// How many fireflies `--fireflies` adds to a patch, and how bright.
@@ -557,6 +560,9 @@ impl<'a> Trainer<'a> {
             let mut aug = data::Augmentation::default();
             if self.opts.augment {
                 aug.orientation = Orientation::from_index(self.rng.next_u64() % 8);
+            }
+            if self.opts.permute_channels {
+                aug.channels = ChannelOrder::from_index(self.rng.next_u64() % 6);
             }
             if let Some(ff) = self.opts.fireflies {
                 for _ in 0..self.rng.next_u64() % (ff.most + 1) {
