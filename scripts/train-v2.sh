@@ -26,7 +26,10 @@
 #      lr 1e-4 / 3e-5 (WORK/RUNG-fireflies);
 #   5. segment 3, from segment 1's weights again: auto-exposed inputs (--exposure auto)
 #      and rarer, brighter fireflies (at most one a patch, 300-10,000x its mean),
-#      6,000 + 2,000 steps, lr 1e-4 / 3e-5 (WORK/RUNG-auto).
+#      6,000 + 2,000 steps, lr 1e-4 / 3e-5 (WORK/RUNG-auto);
+#   6. segment 4, the same from segment 1's weights on the spatial variance estimates that
+#      files without variances (Blender's) get, with --permute-channels
+#      (WORK/RUNG-spatial): the model `--model auto` runs on such files.
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
 # Neither segment is shipped yet (BENCHMARKS.md has why). To try one as the rung:
@@ -81,3 +84,6 @@ segment "$rung-fireflies" "$work/$rung/model.safetensors" 2000 1000 1e-4 3e-5 --
 # surely noise (300x the patch's mean and up, one patch in two), for longer.
 segment "$rung-auto" "$work/$rung/model.safetensors" 6000 2000 1e-4 3e-5 \
     --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300
+# Segment 4: the same for files without variances, trained on the estimates they get.
+segment "$rung-spatial" "$work/$rung/model.safetensors" 6000 2000 1e-4 3e-5 \
+    --variances spatial --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300 --permute-channels

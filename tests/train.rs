@@ -141,15 +141,25 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
     Model::load(&ckpt).unwrap();
 }
 
-#[test]
-fn a_channel_ordered_batch_is_the_batch_with_its_planes_reordered() {
+/// The test dataset, loaded with `prep`, in a folder that lives as long as the guard.
+fn loaded(prep: Preprocessing) -> (tempfile::TempDir, Dataset) {
     let dir = tempfile::tempdir().unwrap();
     dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let data = Dataset::load(dir.path(), 3, false, prep).unwrap();
+    (dir, data)
+}
+
+/// A tensor's values, flattened.
+fn v(t: &candle_core::Tensor) -> Vec<f32> {
+    t.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+}
+
+#[test]
+fn a_channel_ordered_batch_is_the_batch_with_its_planes_reordered() {
+    let (_dir, data) = loaded(Default::default());
     let frames: Vec<_> = data.train.iter().take(1).collect();
     let arch = tiny().arch;
     let (p, (rf, rk)) = (8, arch.train_margins());
-    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     let order = ChannelOrder::from_index(4);
     let aug = Augmentation { channels: order, ..Default::default() };
     for b in [Branch::Diffuse, Branch::Specular] {
@@ -186,7 +196,6 @@ fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
     for b in [Branch::Diffuse, Branch::Specular] {
         let plain = batch(&frames, &origins, p, &arch, b).unwrap();
         let turned = batch_augmented(&frames, &origins, &augs, p, &arch, b).unwrap();
-        let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         for (a, t, side) in [
             (&plain.target, &turned.target, p),
             (&plain.albedo, &turned.albedo, p),
@@ -210,13 +219,10 @@ fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
 
 #[test]
 fn fireflies_are_added_to_the_noisy_input_only() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let (_dir, data) = loaded(Default::default());
     let frames: Vec<_> = data.train.iter().take(1).collect();
     let arch = tiny().arch;
     let (p, (rf, rk)) = (8, arch.train_margins());
-    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     for (b, diffuse) in [(Branch::Diffuse, true), (Branch::Specular, false)] {
         let ff = Firefly { x: 3, y: 5, gain: 1000.0, diffuse };
         let aug = Augmentation { fireflies: vec![ff], ..Default::default() };
@@ -248,18 +254,14 @@ fn fireflies_are_added_to_the_noisy_input_only() {
 
 #[test]
 fn auto_exposed_frames_train_on_targets_at_their_exposure_and_validate_as_rendered() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let raw = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
-    let prep = Preprocessing { exposure: Exposure::Auto, ..Default::default() };
-    let auto = Dataset::load(dir.path(), 3, false, prep).unwrap();
+    let (_dir, raw) = loaded(Default::default());
+    let (_dir2, auto) = loaded(Preprocessing { exposure: Exposure::Auto, ..Default::default() });
     let (fr, fa) = (&raw.train[0], &auto.train[0]);
     let e = fa.features.exposure;
     assert!(e > 0.0 && (e - 1.0).abs() > 0.05 && fr.features.exposure == 1.0, "{e}");
     // Frames keep their references as rendered: validation compares the scaled-back output.
     assert_eq!(fa.reference, fr.reference);
     let arch = Architecture { exposure: Exposure::Auto, ..tiny().arch };
-    let v = |t: &candle_core::Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     let close = |a: f32, b: f32| (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs()));
     for b in [Branch::Diffuse, Branch::Specular] {
         let (r, a) = (batch(&[fr], &[(4, 4)], 8, &arch, b).unwrap(), batch(&[fa], &[(4, 4)], 8, &arch, b).unwrap());
