@@ -22,6 +22,10 @@ mkdir -p "$work"
 cargo build --release --locked --quiet
 kpcn=target/release/kpcn
 
+if [ -f "$work/run/model.safetensors" ]; then
+    echo "model: $work/run/model.safetensors (done)"
+    exit 0
+fi
 if [ ! -f "$work/data/manifest.csv" ]; then
     rm -rf "$work/data.partial"
     # The data the shipped models were trained on: the first 8 families, sampled as the

@@ -4,8 +4,10 @@
 # fireflies injected into the inputs.
 #
 #   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
+#   scripts/train-v2.sh default           # the 3-level default: one segment (below)
 #   KPCN_WORK=DIR                         # work folder (default ./train-v2)
 #   KPCN_LADDER=DIR                       # the ladder's work folder (default ./train-ladder)
+#   KPCN_BASE=DIR                         # scripts/train-default.sh's (default ./train-default)
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M      # segment length (defaults 8000 and 2000)
 #   KPCN_DEV=DIR                          # also score a folder of real renders at every
 #                                         # validation (monitoring only: never trained on)
@@ -30,6 +32,9 @@
 #   6. segment 4, the same from segment 1's weights on the spatial variance estimates that
 #      files without variances (Blender's) get, with --permute-channels
 #      (WORK/RUNG-spatial): the model `--model auto` runs on such files.
+# For `default`, step 1 is scripts/train-default.sh and one segment follows, from its
+# weights: segment 1's and 3's recipes at once (--loss relative --augment --exposure auto,
+# rare bright fireflies), 6,000 + 1,500 steps, lr 2e-4 / 5e-5 (WORK/default-auto).
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
 # Neither segment is shipped yet (BENCHMARKS.md has why). To try one as the rung:
@@ -42,7 +47,14 @@ work=${KPCN_WORK:-train-v2}
 ladder=${KPCN_LADDER:-train-ladder}
 mkdir -p "$work"
 
-KPCN_WORK=$ladder scripts/train-ladder.sh "$rung"
+if [ "$rung" = default ]; then
+    base=${KPCN_BASE:-train-default}
+    scripts/train-default.sh "$base"
+    init=$base/run/model.safetensors
+else
+    KPCN_WORK=$ladder scripts/train-ladder.sh "$rung"
+    init=$ladder/$rung/model.safetensors
+fi
 
 cargo build --release --locked --quiet
 # A copy, so that rebuilding the crate during a long run does not swap the binary under it.
@@ -75,8 +87,13 @@ segment() {
         --schedule cosine --loss relative --augment --checkpoint-every 200 --validate-every 1000 -q "$@"
     echo "$run/model.safetensors (log: $run/log.csv)"
 }
+if [ "$rung" = default ]; then
+    segment default-auto "$init" 6000 1500 2e-4 5e-5 \
+        --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300
+    exit 0
+fi
 # Segment 1: the relative loss keeps sparse light's brightness, and fireflies' too.
-segment "$rung" "$ladder/$rung/model.safetensors" "${KPCN_STEPS:-8000}" "${KPCN_PHASE2_STEPS:-2000}" 2e-4 5e-5
+segment "$rung" "$init" "${KPCN_STEPS:-8000}" "${KPCN_PHASE2_STEPS:-2000}" 2e-4 5e-5
 # Segment 2: fireflies added to the inputs (never the references) teach it to drop them.
 segment "$rung-fireflies" "$work/$rung/model.safetensors" 2000 1000 1e-4 3e-5 --fireflies
 # Segment 3: every frame seen at one exposure (a raw network denoises a 4x brighter

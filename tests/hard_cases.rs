@@ -14,17 +14,19 @@ use kpcn::sim::{RenderOptions, render};
 /// The shipped models for files with variances: what `kpcn denoise` runs, and the ladder.
 const MODELS: [&str; 4] = ["default", "fast", "balanced", "high"];
 
-/// Frames the shipped models still darken by more than 1 % (issue 15's target): (model,
-/// family, spp, the largest loss allowed until the bias is fixed at its source). Measured
-/// losses, 2026-12-01, at 4 / 16 spp: default firefly 3.8 / 6.4 %, corridor 2.5 / 1.7 %,
-/// dof 1.85 % at 4, interior 1.8 / 1.2 %; fast firefly 8.4 / 5.0 %; balanced firefly
-/// 8.3 / 6.1 %, corridor 3.8 / 2.4 %, interior 1.3 % at 4; high firefly 8.0 / 5.7 %,
-/// corridor 2.5 / 1.4 %, interior 1.7 % at 4. The `slit` room (light through a narrow
-/// opening, issue 15's failure mode 1): default 36 / 24 %, fast 27 / 21.5 %, balanced
-/// 52 / 29.5 %, high 38.5 / 19.6 %. Log-space specular filtering and the L1 loss's pull
-/// toward the median are the suspects (BENCHMARKS.md). A frame not listed must stay within
-/// 1 %, and a listed one must not get darker.
-const KNOWN_DARK: &[(&str, &str, u32, f64)] = &[
+/// Frames whose denoised mean the shipped models still move by more than 1 % (issue 15's
+/// target): (model, family, spp, the largest change allowed until the bias is fixed at its
+/// source). Measured changes, 2026-12-01, at 4 / 16 spp: default firefly −3.8 / −6.4 %,
+/// corridor −2.5 / −1.7 %, dof −1.85 % at 4, interior −1.8 / −1.2 %; fast firefly
+/// −8.4 / −5.0 %; high firefly −8.0 / −5.7 %, corridor −2.5 / −1.4 %, interior −1.7 % at 4.
+/// The `slit` room (light through a narrow opening, issue 15's failure mode 1): default
+/// −36 / −24 %, fast −27 / −21.5 %, high −38.5 / −19.6 %. Log-space specular filtering and
+/// the L1 loss's pull toward the median are the suspects (BENCHMARKS.md). `balanced`,
+/// retrained with the mean-seeking relative loss (scripts/train-v2.sh): firefly
+/// −3.96 / −4.44 %, interior −1.01 % at 4, and the slit room +5.0 % (brighter) at 4,
+/// where the L1-trained rung lost 52 %. A frame not listed must stay within 1 %, and a
+/// listed one must not move further.
+const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("default", "firefly", 4, 0.045),
     ("default", "firefly", 16, 0.07),
     ("default", "corridor", 4, 0.03),
@@ -34,11 +36,9 @@ const KNOWN_DARK: &[(&str, &str, u32, f64)] = &[
     ("default", "interior", 16, 0.017),
     ("fast", "firefly", 4, 0.095),
     ("fast", "firefly", 16, 0.06),
-    ("balanced", "firefly", 4, 0.09),
-    ("balanced", "firefly", 16, 0.067),
-    ("balanced", "corridor", 4, 0.043),
-    ("balanced", "corridor", 16, 0.029),
-    ("balanced", "interior", 4, 0.018),
+    ("balanced", "firefly", 4, 0.045),
+    ("balanced", "firefly", 16, 0.05),
+    ("balanced", "interior", 4, 0.012),
     ("high", "firefly", 4, 0.09),
     ("high", "firefly", 16, 0.067),
     ("high", "corridor", 4, 0.035),
@@ -48,8 +48,7 @@ const KNOWN_DARK: &[(&str, &str, u32, f64)] = &[
     ("default", "slit", 16, 0.245),
     ("fast", "slit", 4, 0.275),
     ("fast", "slit", 16, 0.22),
-    ("balanced", "slit", 4, 0.53),
-    ("balanced", "slit", 16, 0.30),
+    ("balanced", "slit", 4, 0.055),
     ("high", "slit", 4, 0.39),
     ("high", "slit", 16, 0.20),
 ];
@@ -84,7 +83,7 @@ fn mean(p: &[Vec<f32>; 3]) -> f64 {
 #[test]
 fn every_family_keeps_its_brightness_within_one_percent_but_the_known_gaps() {
     // The noisy frame is an unbiased estimate of the reference: the denoised mean must stay
-    // within 1 % of it, at 4 and 16 samples, in every family; the frames of KNOWN_DARK
+    // within 1 % of it, at 4 and 16 samples, in every family; the frames of KNOWN_GAPS
     // within their recorded loss.
     let scenes: Vec<(&str, u32, KpcnInputs)> = FAMILIES
         .iter()
@@ -98,9 +97,9 @@ fn every_family_keeps_its_brightness_within_one_percent_but_the_known_gaps() {
         for (family, spp, k) in &scenes {
             let (noisy, out) = (mean(&k.color), mean(&denoise(&d, k).color));
             let loss = 1.0 - out / noisy;
-            // The table KNOWN_DARK is updated from (`cargo test every_family -- --nocapture`).
+            // The table KNOWN_GAPS is updated from (`cargo test every_family -- --nocapture`).
             println!("{model:>8} {family:>9} {spp:>2} spp: {:+.2} %", -100.0 * loss);
-            let allowed = KNOWN_DARK.iter().find(|g| (g.0, g.1, g.2) == (model, *family, *spp)).map_or(0.01, |g| g.3);
+            let allowed = KNOWN_GAPS.iter().find(|g| (g.0, g.1, g.2) == (model, *family, *spp)).map_or(0.01, |g| g.3);
             if loss.abs() > allowed {
                 failures.push(format!(
                     "{model} {family} {spp} spp: denoised mean {out:.5} against noisy {noisy:.5} ({:+.2} %, allowed {:.1} %)",
