@@ -869,6 +869,6 @@ mod tests {
     #[test]
     fn the_embedded_default_loads() {
         let m = Model::embedded_default().unwrap();
-        assert_eq!(m.arch, Architecture::multiscale());
+        assert_eq!(m.arch, Architecture { exposure: Exposure::Auto, ..Architecture::multiscale() });
     }
 }
