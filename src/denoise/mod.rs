@@ -156,7 +156,6 @@ impl Denoiser {
     /// Owned inputs are changed in place where the model needs it; borrowed ones are copied
     /// only then.
     pub fn features(&self, inputs: Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
-        // A model trained on spatial estimates gets them, whatever the file holds.
         self.pool.install(|| self.model.arch.preprocessing().features(inputs, whole))
     }
 

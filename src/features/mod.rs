@@ -321,21 +321,16 @@ pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, 
 }
 
 impl Features {
-    /// Preprocesses one frame.
+    /// Preprocesses one frame, as rendered.
     pub fn new(k: &KpcnInputs) -> Features {
-        Self::with_max_depth(k, max_depth(&k.depth))
+        Self::for_frame(k, FrameStats { max_depth: max_depth(&k.depth), exposure: 1.0 })
     }
 
-    /// Preprocesses part of a frame whose largest finite depth ([`max_depth`] of the whole
-    /// frame) is known, so that a band of rows gets the same features as the whole frame.
-    pub fn with_max_depth(k: &KpcnInputs, max_depth: f32) -> Features {
-        Self::exposed(k, max_depth, 1.0)
-    }
-
-    /// [`Features::with_max_depth`] with the radiance (colour, diffuse, specular) multiplied
-    /// by `exposure` and its variances by `exposure²` (the whole frame's
-    /// [`ExposureMeter`] factor, for an auto-exposed model).
-    pub fn exposed(k: &KpcnInputs, max_depth: f32, exposure: f32) -> Features {
+    /// Preprocesses a frame, or a band of rows of one, with the whole frame's statistics,
+    /// so that a band gets the same features as the whole frame: depth divided by its
+    /// largest, the diffuse and specular radiance multiplied by its exposure and their
+    /// variances by the exposure's square.
+    pub fn for_frame(k: &KpcnInputs, FrameStats { max_depth, exposure }: FrameStats) -> Features {
         let (w, h) = (k.width, k.height);
         let n = w * h;
         // Reflectance lies in [0, 1] (SPEC §3); clamping also keeps albedo + ε away from 0,

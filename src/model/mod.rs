@@ -81,8 +81,8 @@ pub struct Architecture {
 
 /// How a model's radiance inputs are scaled (`kpcn:exposure`). Convolutions with biases
 /// and ReLUs are not scale-invariant: a frame rendered 4× brighter is denoised worse
-/// (BENCHMARKS.md, "Exposure"). The output is scaled back, so the choice never changes
-/// the output's units.
+/// (BENCHMARKS.md, "Autoexposure and the shipped `balanced`"). The output is scaled back,
+/// so the choice never changes the output's units.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Exposure {
     /// As rendered.
@@ -108,6 +108,7 @@ impl Preprocessing {
     /// band of it. Owned inputs are changed in place where needed; borrowed ones are copied
     /// only then.
     pub fn features(self, inputs: std::borrow::Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
+        // A model trained on spatial estimates gets them, whatever the file holds.
         let inputs = if self.variances == Variances::Spatial {
             let mut i = inputs.into_owned();
             i.estimate_variances_spatially();
@@ -119,7 +120,7 @@ impl Preprocessing {
             max_depth: features::max_depth(&inputs.depth),
             exposure: if self.exposure == Exposure::Auto { features::auto_exposure(&inputs) } else { 1.0 },
         });
-        Features::exposed(&inputs, whole.max_depth, whole.exposure)
+        Features::for_frame(&inputs, whole)
     }
 }
 
