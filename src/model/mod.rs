@@ -104,23 +104,32 @@ pub struct Preprocessing {
 
 impl Preprocessing {
     /// The features of `inputs` as such a model sees them (the one place inference and
-    /// training make them); `whole` holds the whole frame's statistics when `inputs` is a
-    /// band of it. Owned inputs are changed in place where needed; borrowed ones are copied
-    /// only then.
+    /// training make them): [`Preprocessing::inputs`], then [`Preprocessing::features_of`].
     pub fn features(self, inputs: std::borrow::Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
-        // A model trained on spatial estimates gets them, whatever the file holds.
-        let inputs = if self.variances == Variances::Spatial {
+        self.features_of(&self.inputs(inputs), whole)
+    }
+
+    /// The inputs such a model sees: a model trained on spatial variance estimates gets
+    /// them, whatever the file holds. Owned inputs are changed in place; borrowed ones are
+    /// copied only then.
+    pub fn inputs(self, inputs: std::borrow::Cow<'_, KpcnInputs>) -> std::borrow::Cow<'_, KpcnInputs> {
+        if self.variances == Variances::Spatial {
             let mut i = inputs.into_owned();
             i.estimate_variances_spatially();
             std::borrow::Cow::Owned(i)
         } else {
             inputs
-        };
+        }
+    }
+
+    /// The features of inputs already made by [`Preprocessing::inputs`]; `whole` holds the
+    /// whole frame's statistics when they are a band of it, else they are measured here.
+    pub fn features_of(self, inputs: &KpcnInputs, whole: Option<FrameStats>) -> Features {
         let whole = whole.unwrap_or_else(|| FrameStats {
             max_depth: features::max_depth(&inputs.depth),
-            exposure: if self.exposure == Exposure::Auto { features::auto_exposure(&inputs) } else { 1.0 },
+            exposure: if self.exposure == Exposure::Auto { features::auto_exposure(inputs) } else { 1.0 },
         });
-        Features::for_frame(&inputs, whole)
+        Features::for_frame(inputs, whole)
     }
 }
 

@@ -285,12 +285,9 @@ impl Dataset {
                         reference_cache = Some((reference.clone(), inputs(&reference)?));
                     }
                     let r = &reference_cache.as_ref().expect("just set").1;
-                    let mut n = inputs(&noisy)?;
                     // Patches are chosen on the variances the model sees.
-                    if prep.variances == Variances::Spatial {
-                        n.estimate_variances_spatially();
-                    }
-                    let features = prep.features(std::borrow::Cow::Borrowed(&n), None);
+                    let n = prep.inputs(std::borrow::Cow::Owned(inputs(&noisy)?)).into_owned();
+                    let features = prep.features_of(&n, None);
                     let f = Frame::new(scene.clone(), spp, &n, features, r);
                     if let Some(k) = &key {
                         // A read-only dataset still trains, only without the speed-up.
