@@ -231,10 +231,12 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         VariancesArg::File => Variances::File,
         VariancesArg::Spatial => Variances::Spatial,
     };
-    let exposure = match (args.exposure, &args.init) {
+    // The --init model, read once: its exposure is the default, and training starts from it.
+    let init = if args.resume { None } else { args.init.as_deref().map(Model::load).transpose()? };
+    let exposure = match (args.exposure, &init) {
         (Some(ExposureArg::Raw), _) => Exposure::Raw,
         (Some(ExposureArg::Auto), _) => Exposure::Auto,
-        (None, Some(init)) if !args.resume => Model::load(init)?.arch.exposure,
+        (None, Some(init)) => init.arch.exposure,
         (None, _) => Exposure::Raw,
     };
     let prep = Preprocessing { variances, exposure };
@@ -292,8 +294,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         records::write_log(&log_path, &rows)?;
         t
     } else {
-        let mut model = match &args.init {
-            Some(p) => Model::load(p)?,
+        let mut model = match init {
+            Some(m) => m,
             None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
         if let Some(c) = args.clamp {
