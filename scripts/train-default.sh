@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Rebuilds a multi-scale KPCN like models/default.safetensors from nothing: simulator data,
-# then one training run from Xavier initialisation. Rerun it after an interruption: the
-# data step is skipped when its manifest exists, and training resumes bit-exactly from the
-# last checkpoint in WORK/run (`--resume`).
+# Rebuilds a 3-level multi-scale KPCN (step 1 of models/compact.safetensors) from nothing:
+# simulator data, then one training run from Xavier initialisation. Rerun it after an
+# interruption: the data step is skipped when its manifest exists, and training resumes
+# bit-exactly from the last checkpoint in WORK/run (`--resume`).
 #
 #   scripts/train-default.sh [WORK]        # WORK defaults to ./train-default
 #   KPCN_VARIANCES=spatial scripts/train-default.sh train-spatial

@@ -4,7 +4,7 @@
 # fireflies injected into the inputs.
 #
 #   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
-#   scripts/train-v2.sh default           # the 3-level default: one segment (below)
+#   scripts/train-v2.sh default           # `compact`, the 3-level network: one segment (below)
 #   KPCN_WORK=DIR                         # work folder (default ./train-v2)
 #   KPCN_LADDER=DIR                       # the ladder's work folder (default ./train-ladder)
 #   KPCN_BASE=DIR                         # scripts/train-default.sh's (default ./train-default)
@@ -37,8 +37,9 @@
 # rare bright fireflies), 6,000 + 1,500 steps, lr 2e-4 / 5e-5 (WORK/default-auto).
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
-# Neither segment is shipped yet (BENCHMARKS.md has why). To try one as the rung:
-#   kpcn model half WORK/RUNG-fireflies/model.safetensors -o models/RUNG.safetensors
+# Shipped (models/README.md): `balanced`, also the default, is segment 3
+#   kpcn model half WORK/balanced-auto/model.safetensors -o models/balanced.safetensors
+# and `compact` is WORK/default-auto/model.safetensors as it is.
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -325,7 +325,7 @@ fn golden_images_of_every_shipped_model_on_a_cycles_crop() {
     let input = FrameBuffers::read(&dir.join("spheres-48x32-input.exr")).unwrap();
     let k = Mapping::for_frame(&input, None).extract(&input).unwrap();
     let mut failures = Vec::new();
-    for name in ["small", "default", "spatial", "small-flat", "fast", "balanced", "high"] {
+    for name in ["small", "default", "compact", "spatial", "small-flat", "fast", "balanced", "high"] {
         let d = run(Model::resolve(name).unwrap(), &k, None, 2);
         let mut out = FrameBuffers::new(d.width, d.height);
         out.insert_rgb("denoised", SampleFormat::Float, d.color).unwrap();

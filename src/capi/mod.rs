@@ -52,9 +52,10 @@ pub struct KpcnOptions {
     pub threads: u32,
     /// Working-memory budget in MB for one tile's network; 0 = the default (512).
     pub max_memory_mb: u32,
-    /// A model by name, or NULL for `"default"`: `"default"`, `"spatial"` (trained on the
-    /// spatial variance estimates of frames without variances), `"small-flat"`, the
-    /// quality ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
+    /// A model by name, or NULL for `"default"`: `"default"` (the quality ladder's
+    /// `"balanced"`), `"compact"` (the 3-level network that was the default), `"spatial"`
+    /// (trained on the spatial variance estimates of frames without variances),
+    /// `"small-flat"`, the ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
     /// frame as `kpcn denoise` does: `default` when the frame has a colour variance (a
     /// `colorVariance` image; in a file, per-pixel variances or half buffers), `spatial`
     /// when it has none.

@@ -36,15 +36,18 @@ pub struct DenoiseArgs {
     pub view_layer: Option<String>,
     /// `auto` picks per file: `default` when the file has per-pixel variances or half
     /// buffers, `spatial` when it has neither (Blender's own output), trained on the
-    /// spatial variance estimates such files give. Or a shipped model by name (`default`,
-    /// `spatial`, `small-flat`: flat KPCN, slower, sometimes better); a .safetensors file
+    /// spatial variance estimates such files give. Or a shipped model by name (`default`:
+    /// the quality ladder's `balanced`; `compact`: the 3-level network that was the
+    /// default, a little faster through files and lighter on memory, a little worse;
+    /// `spatial`; `small-flat`: flat KPCN, slower, sometimes better); a .safetensors file
     /// from `kpcn train`; or, with --allow-untrained, an untrained architecture preset
     /// (`paper`, `small`, `multiscale`) for testing.
     #[arg(long, default_value = "auto", value_name = "MODEL")]
     pub model: String,
     /// A rung of the quality ladder instead of --model: U-Nets that see 188 px around
     /// each pixel, like OIDN's quality modes. `fast` (≈0.45× the time of OIDN 'high' at
-    /// 720p), `balanced` (≈0.7×), `high` (≈1.2×); models/README.md has their quality.
+    /// 720p), `balanced` (≈0.7×; the default), `high` (≈1.2×); models/README.md has their
+    /// quality.
     /// Trained on per-pixel variances: files without them get spatial estimates.
     #[arg(long, value_enum, conflicts_with = "model", value_name = "fast|balanced|high")]
     pub quality: Option<QualityArg>,
@@ -80,15 +83,15 @@ pub struct DenoiseArgs {
     /// Worker threads (default: all cores).
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
-    /// Working memory in MB that grows with the frame: each band of rows in flight (every
-    /// channel of the band, the network inputs and features) is sized to half of it, each
-    /// tile's network activations to all of it. Not counted: the process's fixed cost
-    /// (program, libraries, model, thread stacks, a 64 MB buffer pool; 300-450 MB).
-    /// Measured peak RSS for a 1920x1152 frame with 38 channels: 64 -> 487 MB, 512 -> 712,
-    /// 1024 -> 862; 3840x2160 with 41 channels at the default: 879 MB. A band is never
-    /// thinner than twice the context rows it reads when the budget allows fewer than
-    /// those: the ladder (--quality) reads 194 each side and exceeds the budget at 4K
-    /// (`balanced`: 1.86 GB).
+    /// Working memory in MB that grows with the frame: a band of rows in flight (its
+    /// network inputs and features, with the context rows the network reads) and its
+    /// tiles' network activations share it. A band is never thinner than twice its context
+    /// rows, nor a tile than twice the network's reach: a wide network exceeds a small
+    /// budget rather than running several times slower. Not counted: the process's fixed
+    /// cost (program, libraries, model, OpenEXR's row buffers, thread stacks, a 64 MB
+    /// buffer pool; 200-450 MB). Measured peak RSS for a 1920x1152 frame with 38
+    /// channels: 64 -> 706 MB, 512 -> 812, 1024 -> 1028 (`compact`: 339, 613, 856);
+    /// 3840x2160 with 41 channels at the default: 877 MB (`compact`: 740).
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
@@ -432,7 +435,10 @@ fn denoise_view_layer(
         }
     }
     if args.verbose {
-        let tiles = denoiser.tiles(w, 0..band.min(h), band.min(h));
+        // A middle band's tiles: its context rows share the budget.
+        let (rows, total) = (band.min(h), (band + 2 * denoiser.halo()).min(h));
+        let c0 = (total - rows) / 2;
+        let tiles = denoiser.band_tiles(w, c0..c0 + rows, total);
         let tile = tiles.first().map_or("none".to_string(), |t| format!("{}x{}", t.w, t.h));
         bar.suspend(|| {
             println!(

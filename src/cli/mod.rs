@@ -125,6 +125,11 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     if matches!(cli.command, Command::Train(_) | Command::Speed(_)) {
         crate::kernel::buffers::keep_freed_memory();
     }
+    if matches!(cli.command, Command::Denoise(_)) {
+        crate::kernel::buffers::return_large_blocks();
+        // Memory, not speed: streamed bands read a few chunks at a time.
+        crate::io::decode_exr_on_the_calling_thread().map_err(|e| anyhow::anyhow!("OpenImageIO: {e}"))?;
+    }
     // `kpcn train` stops gracefully on Ctrl-C instead, after saving its checkpoint.
     if !matches!(cli.command, Command::Train(_)) {
         signals::exit_on_signals();

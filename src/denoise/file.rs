@@ -208,7 +208,7 @@ impl FileJob {
         let halo = denoiser.halo();
         let tiles_in = |a: usize, b: usize| {
             let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
-            denoiser.tiles(w, a - c0..b - c0, c1 - c0).len()
+            denoiser.band_tiles(w, a - c0..b - c0, c1 - c0).len()
         };
         let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
         let mut done = 0;
@@ -234,11 +234,12 @@ impl FileJob {
                     continue;
                 }
                 let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
-                // Context rows need the network inputs; the copy needs this part's channels.
-                let mut names = needed.clone();
-                names.extend(copies.iter().filter(|n| !needed.contains(n)));
-                let fb = self.reader.read_band(Some(&names), c0, c1)?;
+                // The band with its context rows holds only the network's inputs (a wide
+                // network's context is most of the band), and only until they are mapped;
+                // the copied channels are read for the inner rows after the network ran.
+                let fb = self.reader.read_band(Some(&needed), c0, c1)?;
                 let inputs = self.mapping.extract(&fb)?;
+                drop(fb);
                 for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
                     match totals.iter_mut().find(|t| t.0 == name) {
                         Some(t) => {
@@ -251,17 +252,17 @@ impl FileJob {
                 let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
                 let d = denoiser
-                    .denoise_rows(&f, a - c0..b - c0, &step)
+                    .denoise_band(&f, a - c0..b - c0, &step)
                     .map_err(|source| FileError::Denoise { path: path.clone(), source })?;
                 drop(f);
                 done += tiles_in(a, b);
                 let new = new_planes(&d, opts.aovs);
-                let inner = (a - c0) * w..(b - c0) * w;
+                let fb = self.reader.read_band(Some(&copies), a, b)?;
                 let planes: Vec<&[f32]> = channels
                     .iter()
                     .map(|(_, _, src)| match src {
                         Src::New(k) => new[*k],
-                        Src::Input(n) => &fb.channel(n).expect("read above")[inner.clone()],
+                        Src::Input(n) => fb.channel(n).expect("read above"),
                     })
                     .collect();
                 writer.write_band(&planes, b - a)?;

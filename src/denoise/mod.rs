@@ -126,7 +126,31 @@ impl Denoiser {
     /// rows): `Options::tile_size` squares when given, else the sizes of least work within
     /// `max_memory_mb` ([`tile::size_for_regions`]). Positions are relative to `rows.start`.
     pub fn tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<tile::Tile> {
+        self.tiles_within(width, rows, total_rows, self.options.max_memory_mb << 20)
+    }
+
+    /// The tiles [`Denoiser::denoise_band`] runs: [`Denoiser::tiles`] within what the
+    /// band's features leave of `max_memory_mb` (at least a quarter of it), so that a band
+    /// and its tiles share the budget.
+    pub fn band_tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<tile::Tile> {
+        let budget = self.options.max_memory_mb << 20;
+        let left = budget.saturating_sub(Features::bytes(width, total_rows)).max(budget / 4);
+        self.tiles_within(width, rows, total_rows, left)
+    }
+
+    fn tiles_within(
+        &self,
+        width: usize,
+        rows: std::ops::Range<usize>,
+        total_rows: usize,
+        budget: usize,
+    ) -> Vec<tile::Tile> {
         let arch = &self.model.arch;
+        // Never tiles smaller than twice the network's reach, whose regions would be
+        // mostly context (the default's 192 px at a 64 MB budget: 32-px tiles, 24× slower):
+        // over budget rather than several times slower, as bands are.
+        let side = (2 * self.reach().radius).next_multiple_of(arch.alignment());
+        let budget = budget.max(arch.region_bytes(2 * side, 2 * side, side, side));
         let h = rows.end.saturating_sub(rows.start);
         let (tw, th) = match self.options.tile_size {
             Some(t) => (t.next_multiple_of(arch.alignment()), t.next_multiple_of(arch.alignment())),
@@ -136,7 +160,7 @@ impl Denoiser {
                 &self.reach(),
                 16usize.max(arch.alignment()),
                 |rw, rh, tw, th| arch.region_bytes(rw, rh, tw, th),
-                self.options.max_memory_mb << 20,
+                budget,
             ),
         };
         tile::plan(width, h, tw, th)
@@ -183,6 +207,26 @@ impl Denoiser {
         rows: std::ops::Range<usize>,
         progress: &dyn Fn(Progress) -> bool,
     ) -> Result<Denoised, DenoiseError> {
+        self.denoise_tiles(f, rows, Self::tiles, progress)
+    }
+
+    /// [`Denoiser::denoise_rows`] of a band of a streamed frame, in [`Denoiser::band_tiles`].
+    pub fn denoise_band(
+        &self,
+        f: &Features,
+        rows: std::ops::Range<usize>,
+        progress: &dyn Fn(Progress) -> bool,
+    ) -> Result<Denoised, DenoiseError> {
+        self.denoise_tiles(f, rows, Self::band_tiles, progress)
+    }
+
+    fn denoise_tiles(
+        &self,
+        f: &Features,
+        rows: std::ops::Range<usize>,
+        plan: fn(&Self, usize, std::ops::Range<usize>, usize) -> Vec<Tile>,
+        progress: &dyn Fn(Progress) -> bool,
+    ) -> Result<Denoised, DenoiseError> {
         let (w, y0) = (f.width, rows.start);
         let h = rows.end.min(f.height).saturating_sub(y0);
         if w == 0 || h == 0 {
@@ -190,7 +234,7 @@ impl Denoiser {
         }
         // The tile loop runs on the caller's thread, so `progress` does too (a C host's
         // callback may touch its UI); each tile's work runs in the pool.
-        let tiles = self.tiles(w, rows.start..rows.start + h, f.height);
+        let tiles = plan(self, w, rows.start..rows.start + h, f.height);
         let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
         let mut s_hat = d_hat.clone();
         for (i, t) in tiles.iter().enumerate() {

@@ -7,6 +7,7 @@
 
 use crate::io::layout::KpcnInputs;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// The paper's ε, used in albedo demodulation and recomposition.
 pub const EPSILON: f32 = 0.00316;
@@ -234,17 +235,79 @@ pub fn sanitize(v: f32) -> f32 {
     if v.is_finite() { v.clamp(-MAX_MAGNITUDE, MAX_MAGNITUDE) } else { 0.0 }
 }
 
-fn clean(p: &[f32]) -> Vec<f32> {
-    p.par_iter().map(|&v| sanitize(v)).collect()
-}
-
-fn clean3(p: &[Vec<f32>; 3]) -> [Vec<f32>; 3] {
-    [clean(&p[0]), clean(&p[1]), clean(&p[2])]
-}
-
 /// A variance: sanitised and never negative.
-fn clean_variance(p: &[f32]) -> Vec<f32> {
-    p.par_iter().map(|&v| sanitize(v).max(0.0)).collect()
+fn clean_variance_of(v: f32) -> f32 {
+    sanitize(v).max(0.0)
+}
+
+/// An input plane that [`Features::for_frame`] transforms elementwise: in place when the
+/// inputs are owned, into a new plane when borrowed.
+enum Plane<'a> {
+    Owned(Vec<f32>),
+    Borrowed(&'a [f32]),
+}
+
+impl Plane<'_> {
+    fn map(self, f: impl Fn(f32) -> f32 + Sync + Send) -> Vec<f32> {
+        match self {
+            Plane::Owned(mut v) => {
+                v.par_iter_mut().for_each(|x| *x = f(*x));
+                v
+            }
+            Plane::Borrowed(p) => p.par_iter().map(|&x| f(x)).collect(),
+        }
+    }
+}
+
+/// The inputs [`Features`] are made of (the colour and its variance are not).
+struct Planes<'a> {
+    diffuse: [Plane<'a>; 3],
+    specular: [Plane<'a>; 3],
+    albedo: [Plane<'a>; 3],
+    normal: [Plane<'a>; 3],
+    depth: Plane<'a>,
+    diffuse_variance: Plane<'a>,
+    specular_variance: Plane<'a>,
+    albedo_variance: Plane<'a>,
+    normal_variance: Plane<'a>,
+    depth_variance: Plane<'a>,
+}
+
+impl<'a> Planes<'a> {
+    fn of(k: Cow<'a, KpcnInputs>) -> Planes<'a> {
+        match k {
+            Cow::Owned(k) => {
+                let three = |p: [Vec<f32>; 3]| p.map(Plane::Owned);
+                Planes {
+                    diffuse: three(k.diffuse),
+                    specular: three(k.specular),
+                    albedo: three(k.albedo),
+                    normal: three(k.normal),
+                    depth: Plane::Owned(k.depth),
+                    diffuse_variance: Plane::Owned(k.diffuse_variance),
+                    specular_variance: Plane::Owned(k.specular_variance),
+                    albedo_variance: Plane::Owned(k.albedo_variance),
+                    normal_variance: Plane::Owned(k.normal_variance),
+                    depth_variance: Plane::Owned(k.depth_variance),
+                }
+            }
+            Cow::Borrowed(k) => {
+                let three = |p: &'a [Vec<f32>; 3]| p.each_ref().map(|v| Plane::Borrowed(v));
+                Planes {
+                    diffuse: three(&k.diffuse),
+                    specular: three(&k.specular),
+                    albedo: three(&k.albedo),
+                    normal: three(&k.normal),
+                    depth: Plane::Borrowed(&k.depth),
+                    diffuse_variance: Plane::Borrowed(&k.diffuse_variance),
+                    specular_variance: Plane::Borrowed(&k.specular_variance),
+                    albedo_variance: Plane::Borrowed(&k.albedo_variance),
+                    normal_variance: Plane::Borrowed(&k.normal_variance),
+                    depth_variance: Plane::Borrowed(&k.depth_variance),
+                }
+            }
+        }
+    }
 }
 
 /// Backward differences `I[x] − I[x−1]` (0 in the first column) and `I[y] − I[y−1]`.
@@ -271,12 +334,27 @@ pub fn max_depth(depth: &[f32]) -> f32 {
 
 /// Demodulated diffuse `diffuse / (albedo + ε)`.
 pub fn demodulate(diffuse: &[f32], albedo: &[f32]) -> Vec<f32> {
-    diffuse.par_iter().zip(albedo).map(|(d, a)| d / (a + EPSILON)).collect()
+    diffuse.par_iter().zip(albedo).map(|(&d, &a)| demodulated(d, a)).collect()
+}
+
+/// One pixel of [`demodulate`].
+pub fn demodulated(diffuse: f32, albedo: f32) -> f32 {
+    diffuse / (albedo + EPSILON)
 }
 
 /// Log specular `ln(1 + max(s, 0))`.
 pub fn log_specular(s: &[f32]) -> Vec<f32> {
-    s.par_iter().map(|&v| v.max(0.0).ln_1p()).collect()
+    s.par_iter().map(|&v| log_specular_of(v)).collect()
+}
+
+/// One pixel of [`log_specular`]; [`specular_of_log`] undoes it for `s ≥ 0`.
+pub fn log_specular_of(s: f32) -> f32 {
+    s.max(0.0).ln_1p()
+}
+
+/// The specular radiance `exp(s̃) − 1` of a log-specular value.
+pub fn specular_of_log(s_tilde: f32) -> f32 {
+    s_tilde.exp_m1()
 }
 
 /// Samples of one input that preprocessing had to repair.
@@ -321,66 +399,73 @@ pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, 
 }
 
 impl Features {
+    /// Planes a frame's features hold.
+    pub const PLANES: usize = 18;
+
+    /// Bytes of the features of a `width`×`height` frame.
+    pub fn bytes(width: usize, height: usize) -> usize {
+        Self::PLANES * 4 * width * height
+    }
+
     /// Preprocesses one frame, as rendered.
     pub fn new(k: &KpcnInputs) -> Features {
-        Self::for_frame(k, FrameStats { max_depth: max_depth(&k.depth), exposure: 1.0 })
+        Self::for_frame(Cow::Borrowed(k), FrameStats { max_depth: max_depth(&k.depth), exposure: 1.0 })
     }
 
     /// Preprocesses a frame, or a band of rows of one, with the whole frame's statistics,
     /// so that a band gets the same features as the whole frame: depth divided by its
     /// largest, the diffuse and specular radiance multiplied by its exposure and their
     /// variances by the exposure's square.
-    pub fn for_frame(k: &KpcnInputs, FrameStats { max_depth, exposure }: FrameStats) -> Features {
+    pub fn for_frame(k: Cow<'_, KpcnInputs>, FrameStats { max_depth, exposure }: FrameStats) -> Features {
         let (w, h) = (k.width, k.height);
         let n = w * h;
+        // Owned inputs become the features in place (a streamed 4K band's inputs are
+        // hundreds of MB); every step is elementwise, so both ways give the same bits.
+        let p = Planes::of(k);
         // Reflectance lies in [0, 1] (SPEC §3); clamping also keeps albedo + ε away from 0,
         // and a hostile 1e30 from scaling the output (recomposition uses this albedo).
-        let albedo = clean3(&k.albedo).map(|p| p.into_par_iter().map(|a| a.clamp(0.0, 1.0)).collect::<Vec<f32>>());
-        let scaled =
-            |p: Vec<f32>, f: f32| if f == 1.0 { p } else { p.into_par_iter().map(|v| sanitize(v * f)).collect() };
+        let albedo = p.albedo.map(|a| a.map(|v| sanitize(v).clamp(0.0, 1.0)));
+        let scaled = |f: f32| move |v: f32| if f == 1.0 { v } else { sanitize(v * f) };
         let e2 = exposure * exposure;
-        let diffuse = clean3(&k.diffuse).map(|p| scaled(p, exposure));
-        let specular = clean3(&k.specular).map(|p| scaled(p, exposure));
+        let mut diffuse = p.diffuse.map(|d| d.map(|v| scaled(exposure)(sanitize(v))));
+        let mut specular = p.specular.map(|s| s.map(|v| scaled(exposure)(sanitize(v))));
 
         // Depth: non-finite → 0, ≥ 0, divided by the frame's largest finite depth.
-        let depth_raw = clean(&k.depth);
         let scale = if max_depth > 0.0 { 1.0 / max_depth as f64 } else { 0.0 };
-        let depth = depth_raw.par_iter().map(|&d| (d.max(0.0) as f64 * scale) as f32).collect();
-        let depth_variance = clean_variance(&k.depth_variance)
-            .par_iter()
-            .map(|&v| sanitize((v as f64 * scale * scale) as f32))
-            .collect();
+        let depth = p.depth.map(|d| (sanitize(d).max(0.0) as f64 * scale) as f32);
+        let depth_variance = p.depth_variance.map(|v| sanitize((clean_variance_of(v) as f64 * scale * scale) as f32));
 
-        let d_var = scaled(clean_variance(&k.diffuse_variance), e2);
-        let s_var = scaled(clean_variance(&k.specular_variance), e2);
         // Variance divisions in f64, results sanitised back to the f32 range.
-        let d_variance = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let a = (albedo[0][i] + albedo[1][i] + albedo[2][i]) as f64 / 3.0 + EPSILON as f64;
-                sanitize((d_var[i] as f64 / (a * a)) as f32)
-            })
-            .collect();
+        let mut d_variance = p.diffuse_variance.map(|v| scaled(e2)(clean_variance_of(v)));
+        d_variance.par_iter_mut().enumerate().for_each(|(i, v)| {
+            let a = (albedo[0][i] + albedo[1][i] + albedo[2][i]) as f64 / 3.0 + EPSILON as f64;
+            *v = sanitize((*v as f64 / (a * a)) as f32);
+        });
         // Delta method for ln(1 + s): σ² / (1 + s)², with the mean of (1 + s) over RGB.
-        let s_variance = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let m = 1.0 + (0..3).map(|c| specular[c][i].max(0.0) as f64).sum::<f64>() / 3.0;
-                sanitize((s_var[i] as f64 / (m * m)) as f32)
-            })
-            .collect();
+        let mut s_variance = p.specular_variance.map(|v| scaled(e2)(clean_variance_of(v)));
+        s_variance.par_iter_mut().enumerate().for_each(|(i, v)| {
+            let m = 1.0 + (0..3).map(|c| specular[c][i].max(0.0) as f64).sum::<f64>() / 3.0;
+            *v = sanitize((*v as f64 / (m * m)) as f32);
+        });
+        for (d, a) in diffuse.iter_mut().zip(&albedo) {
+            d.par_iter_mut().zip(a).for_each(|(d, &a)| *d = sanitize(demodulated(*d, a)));
+        }
+        for s in &mut specular {
+            s.par_iter_mut().for_each(|v| *v = log_specular_of(*v));
+        }
+        debug_assert!(depth.len() == n && d_variance.len() == n);
         Features {
             width: w,
             height: h,
-            d_tilde: std::array::from_fn(|c| clean(&demodulate(&diffuse[c], &albedo[c]))),
-            s_tilde: std::array::from_fn(|c| log_specular(&specular[c])),
-            normal: clean3(&k.normal).map(|p| p.into_par_iter().map(|v| v.clamp(-1.0, 1.0)).collect::<Vec<f32>>()),
+            d_tilde: diffuse,
+            s_tilde: specular,
+            normal: p.normal.map(|p| p.map(|v| sanitize(v).clamp(-1.0, 1.0))),
             albedo,
             depth,
             d_variance,
             s_variance,
-            normal_variance: clean_variance(&k.normal_variance),
-            albedo_variance: clean_variance(&k.albedo_variance),
+            normal_variance: p.normal_variance.map(clean_variance_of),
+            albedo_variance: p.albedo_variance.map(clean_variance_of),
             depth_variance,
             exposure,
         }
@@ -687,6 +772,34 @@ mod tests {
         assert!((s[2][0] - 2f32.ln()).abs() < 1e-6);
         let m = 1.0 + (0.0 + 0.5 + 1.0) / 3.0;
         assert!((s[23][0] - (0.04 / (m * m)) as f32).abs() < 1e-6);
+    }
+
+    /// Owned inputs become features in place, borrowed ones are copied: the same bits,
+    /// hostile samples included, at a scaled exposure too; and `Features::PLANES` counts them.
+    #[test]
+    fn owned_and_borrowed_inputs_give_the_same_features() {
+        let hostile = [f32::NAN, f32::INFINITY, -1e30, -0.5, 0.0, 3e-3, 0.7, 1e4, f32::NEG_INFINITY];
+        let k = inputs(9, 4, |i| hostile[i % hostile.len()] * if i % 2 == 0 { 1.0 } else { 0.01 });
+        for stats in [FrameStats { max_depth: 7.0, exposure: 1.0 }, FrameStats { max_depth: 0.0, exposure: 0.3 }] {
+            let (a, b) =
+                (Features::for_frame(Cow::Borrowed(&k), stats), Features::for_frame(Cow::Owned(k.clone()), stats));
+            let all = |f: &Features| -> Vec<Vec<u32>> {
+                let mut p: Vec<&Vec<f32>> =
+                    [&f.d_tilde, &f.s_tilde, &f.normal, &f.albedo].into_iter().flatten().collect();
+                p.extend([
+                    &f.depth,
+                    &f.d_variance,
+                    &f.s_variance,
+                    &f.normal_variance,
+                    &f.albedo_variance,
+                    &f.depth_variance,
+                ]);
+                p.iter().map(|v| v.iter().map(|x| x.to_bits()).collect()).collect()
+            };
+            assert_eq!(all(&a), all(&b));
+            assert_eq!(all(&a).len(), Features::PLANES);
+            assert!(all(&a).iter().flatten().all(|&x| f32::from_bits(x).is_finite()));
+        }
     }
 
     /// The whole frame's input as 27 planes.

@@ -5,10 +5,9 @@ use super::oiio::{Attribute, Input, SampleFormat, SubimageInfo};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-/// Rows decoded per read call: bounds the interleaved scratch buffer.
-const ROW_BAND: usize = 64;
-/// Channels decoded per read call, for the same reason.
-const CHANNEL_BLOCK: usize = 16;
+/// Rows × channels decoded per read call: bounds the interleaved scratch buffer (64 rows
+/// of 16 channels, 16 of 64).
+const SCRATCH_SAMPLES_PER_COLUMN: usize = 1024;
 
 /// One named channel of a frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -412,25 +411,18 @@ impl FrameReader {
                 .map(|(k, c)| (self.channels[*c].index, k))
                 .collect();
             indices.sort_unstable();
-            // Contiguous blocks of at most CHANNEL_BLOCK channels, one decode each.
-            let mut i = 0;
-            while i < indices.len() {
-                let c0 = indices[i].0;
-                let mut j = i;
-                while j < indices.len() && indices[j].0 < c0 + CHANNEL_BLOCK {
-                    j += 1;
-                }
-                let c1 = indices[j - 1].0 + 1;
-                let mut planes = read_planes(&mut self.input, s, info, y0, y1, c0, c1)
-                    .map_err(|reason| IoError::Read { path: path.clone(), subimage: s, reason })?;
-                for p in i..j {
-                    let (index, k) = indices[p];
-                    // A channel asked for twice is copied; otherwise moved.
-                    let again = p + 1 < j && indices[p + 1].0 == index;
-                    let plane = &mut planes[index - c0];
-                    data[k] = Some(if again { plane.clone() } else { std::mem::take(plane) });
-                }
-                i = j;
+            if indices.is_empty() {
+                continue;
+            }
+            let mut unique: Vec<usize> = indices.iter().map(|&(index, _)| index).collect();
+            unique.dedup();
+            let mut planes = read_planes(&mut self.input, s, info, y0, y1, &unique)
+                .map_err(|reason| IoError::Read { path: path.clone(), subimage: s, reason })?;
+            for (p, &(index, k)) in indices.iter().enumerate() {
+                // A channel asked for twice is copied; otherwise moved.
+                let again = indices.get(p + 1).is_some_and(|n| n.0 == index);
+                let plane = &mut planes[unique.binary_search(&index).expect("listed above")];
+                data[k] = Some(if again { plane.clone() } else { std::mem::take(plane) });
             }
         }
         for (c, d) in wanted.iter().zip(data) {
@@ -441,23 +433,27 @@ impl FrameReader {
     }
 }
 
-/// Decodes rows `[y0, y1)` of channels `[c0, c1)` of subimage `s` into planes, a band of
-/// rows at a time so the interleaved scratch stays small. Tiled files are read from tile
-/// boundaries and cropped.
+/// Decodes rows `[y0, y1)` of channels `channels` (sorted, distinct) of subimage `s` into
+/// one plane each. Every call reads all of them at once, since a compressed chunk is
+/// decoded whole whichever of its channels are asked for, a band of rows at a time so
+/// that the interleaved scratch (the channels' span) stays small. Tiled files are read
+/// from tile boundaries and cropped.
 fn read_planes(
     input: &mut Input,
     s: usize,
     info: &SubimageInfo,
     y0: usize,
     y1: usize,
-    c0: usize,
-    c1: usize,
+    channels: &[usize],
 ) -> Result<Vec<Vec<f32>>, String> {
     let (w, h) = (info.width, info.height);
-    let k = c1 - c0;
-    let mut planes = vec![vec![0f32; w * (y1 - y0)]; k];
+    let (Some(&c0), Some(&last)) = (channels.first(), channels.last()) else { return Ok(Vec::new()) };
+    let (c1, k) = (last + 1, last + 1 - c0);
+    let mut planes = vec![vec![0f32; w * (y1 - y0)]; channels.len()];
     let th = info.tile_height.max(1);
-    let band = th * ROW_BAND.div_ceil(th);
+    // Whole 16-row chunks (zip's) where the scratch allows.
+    let rows = (SCRATCH_SAMPLES_PER_COLUMN / k / 16).max(1) * 16;
+    let band = th * rows.div_ceil(th);
     let mut scratch = Vec::new();
     // Read from the tile boundary at or before y0.
     let mut r0 = y0 / th * th;
@@ -469,8 +465,8 @@ fn read_planes(
             let src = &scratch[(r - r0) * w * k..(r - r0 + 1) * w * k];
             let at = (r - y0) * w;
             for (i, px) in src.chunks_exact(k).enumerate() {
-                for (j, v) in px.iter().enumerate() {
-                    planes[j][at + i] = *v;
+                for (plane, &c) in planes.iter_mut().zip(channels) {
+                    plane[at + i] = px[c - c0];
                 }
             }
         }

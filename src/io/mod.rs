@@ -12,6 +12,8 @@ mod write;
 
 pub use error::IoError;
 pub use frame::{FrameBuffers, FrameReader, PartLayout, Plane, Window};
-pub use oiio::{Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, oiio_version};
+pub use oiio::{
+    Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, decode_exr_on_the_calling_thread, oiio_version,
+};
 pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
 pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};

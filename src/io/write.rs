@@ -10,8 +10,9 @@ use std::path::{Path, PathBuf};
 /// EXR compressions OpenImageIO accepts.
 pub const COMPRESSIONS: &[&str] = &["none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"];
 
-/// Rows interleaved and handed to the writer at once.
-const ROW_BAND: usize = 64;
+/// Rows × channels interleaved and handed to the writer at once (whole 16-row chunks):
+/// bounds the scratch buffer, which lives as long as the writer.
+const SCRATCH_SAMPLES_PER_COLUMN: usize = 1024;
 
 /// How to write a frame.
 #[derive(Debug, Clone, Default)]
@@ -159,8 +160,9 @@ impl FrameWriter {
             );
         }
         let out = self.out.as_mut().expect("open until commit");
-        for r0 in (0..rows).step_by(ROW_BAND) {
-            let r1 = (r0 + ROW_BAND).min(rows);
+        let band = (SCRATCH_SAMPLES_PER_COLUMN / nch.max(1) / 16).max(1) * 16;
+        for r0 in (0..rows).step_by(band) {
+            let r1 = (r0 + band).min(rows);
             self.scratch.clear();
             for i in r0 * w..r1 * w {
                 self.scratch.extend(planes.iter().map(|p| p[i]));

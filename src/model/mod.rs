@@ -17,21 +17,23 @@ pub mod pyramid;
 /// Model file format version written in the metadata.
 pub const FORMAT_VERSION: &str = "1";
 
-/// The embedded default model (see `models/README.md`).
-static DEFAULT_MODEL: &[u8] = include_bytes!("../../models/default.safetensors");
+/// The 3-level multi-scale KPCN that was the default until the ladder's `balanced` took its
+/// place (`compact`; see `models/README.md`): a 44-px reach, so the least memory per band.
+static COMPACT_MODEL: &[u8] = include_bytes!("../../models/compact.safetensors");
 /// The flat KPCN shipped beside it (`small-flat`): slower, better on some renders.
 static SMALL_FLAT_MODEL: &[u8] = include_bytes!("../../models/small.safetensors");
 /// The default's architecture and recipe trained on spatial variance estimates
 /// (`spatial`): for files without variances, such as Blender's own output.
 static SPATIAL_MODEL: &[u8] = include_bytes!("../../models/spatial.safetensors");
 
-/// The quality ladder's rungs (`--quality`, [`Architecture::ladder`]).
+/// The quality ladder's rungs (`--quality`, [`Architecture::ladder`]); `balanced` is also
+/// the default.
 static FAST_MODEL: &[u8] = include_bytes!("../../models/fast.safetensors");
 static BALANCED_MODEL: &[u8] = include_bytes!("../../models/balanced.safetensors");
 static HIGH_MODEL: &[u8] = include_bytes!("../../models/high.safetensors");
 
 /// Names of the trained models shipped inside the library, for `Model::resolve`.
-pub const SHIPPED: [&str; 6] = ["default", "spatial", "small-flat", "fast", "balanced", "high"];
+pub const SHIPPED: [&str; 7] = ["default", "compact", "spatial", "small-flat", "fast", "balanced", "high"];
 
 /// Kernel prediction or direct prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -104,9 +106,12 @@ pub struct Preprocessing {
 
 impl Preprocessing {
     /// The features of `inputs` as such a model sees them (the one place inference and
-    /// training make them): [`Preprocessing::inputs`], then [`Preprocessing::features_of`].
+    /// training make them): [`Preprocessing::inputs`], then the features, made in place
+    /// of owned inputs.
     pub fn features(self, inputs: std::borrow::Cow<'_, KpcnInputs>, whole: Option<FrameStats>) -> Features {
-        self.features_of(&self.inputs(inputs), whole)
+        let inputs = self.inputs(inputs);
+        let whole = whole.unwrap_or_else(|| self.frame_stats(&inputs));
+        Features::for_frame(inputs, whole)
     }
 
     /// The inputs such a model sees: a model trained on spatial variance estimates gets
@@ -125,11 +130,16 @@ impl Preprocessing {
     /// The features of inputs already made by [`Preprocessing::inputs`]; `whole` holds the
     /// whole frame's statistics when they are a band of it, else they are measured here.
     pub fn features_of(self, inputs: &KpcnInputs, whole: Option<FrameStats>) -> Features {
-        let whole = whole.unwrap_or_else(|| FrameStats {
+        let whole = whole.unwrap_or_else(|| self.frame_stats(inputs));
+        Features::for_frame(std::borrow::Cow::Borrowed(inputs), whole)
+    }
+
+    /// The statistics of a whole frame that its features depend on.
+    fn frame_stats(self, inputs: &KpcnInputs) -> FrameStats {
+        FrameStats {
             max_depth: features::max_depth(&inputs.depth),
             exposure: if self.exposure == Exposure::Auto { features::auto_exposure(inputs) } else { 1.0 },
-        });
-        Features::for_frame(inputs, whole)
+        }
     }
 }
 
@@ -608,17 +618,18 @@ impl Model {
         self.description.starts_with("untrained")
     }
 
-    /// The model shipped inside the library.
+    /// The default model: the quality ladder's `balanced` rung.
     pub fn embedded_default() -> Result<Model, ModelError> {
-        Self::from_bytes(DEFAULT_MODEL, "embedded default model")
+        Self::shipped_rung(Quality::Balanced)
     }
 
-    /// A shipped model (`default`, `spatial`, `small-flat`, the ladder's `fast`, `balanced`,
-    /// `high`), a preset name (`paper`, `small`, `multiscale`: untrained, Xavier seed 0; see
+    /// A shipped model (`default` = `balanced`, `compact`, `spatial`, `small-flat`, the
+    /// ladder's `fast`, `balanced`, `high`), a preset name (`paper`, `small`, `multiscale`: untrained, Xavier seed 0; see
     /// [`Model::is_untrained`]) or a file path.
     pub fn resolve(name: &str) -> Result<Model, ModelError> {
         match name {
             "default" => Self::embedded_default(),
+            "compact" => Self::from_bytes(COMPACT_MODEL, "shipped model compact"),
             "small-flat" => Self::from_bytes(SMALL_FLAT_MODEL, "shipped model small-flat"),
             "fast" => Self::shipped_rung(Quality::Fast),
             "balanced" => Self::shipped_rung(Quality::Balanced),
@@ -879,8 +890,10 @@ mod tests {
     }
 
     #[test]
-    fn the_embedded_default_loads() {
-        let m = Model::embedded_default().unwrap();
-        assert_eq!(m.arch, Architecture { exposure: Exposure::Auto, ..Architecture::multiscale() });
+    fn the_embedded_default_is_balanced_and_compact_the_3_level_network() {
+        let (d, b) = (Model::embedded_default().unwrap(), Model::shipped_rung(Quality::Balanced).unwrap());
+        assert_eq!((d.arch, &d.description), (b.arch, &b.description));
+        let c = Model::resolve("compact").unwrap();
+        assert_eq!(c.arch, Architecture { exposure: Exposure::Auto, ..Architecture::multiscale() });
     }
 }

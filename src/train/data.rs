@@ -1,7 +1,9 @@
 //! Training data: frames listed in a `kpcn dataset` manifest, their reference targets, an
 //! importance map, and batches of patches.
 
-use crate::features::{Branch, ChannelOrder, EPSILON, Features, Orientation, log_specular, sanitize};
+use crate::features::{
+    Branch, ChannelOrder, EPSILON, Features, Orientation, log_specular, log_specular_of, sanitize, specular_of_log,
+};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
 use crate::model::{Architecture, Exposure, ModelError, Preprocessing, Variances};
@@ -451,7 +453,9 @@ pub fn batch_augmented(
         if e != 1.0 {
             match b {
                 Branch::Diffuse => crops[0].iter_mut().for_each(|v| *v = sanitize(*v * e)),
-                Branch::Specular => crops[0].iter_mut().for_each(|v| *v = sanitize((e * v.exp_m1()).ln_1p())),
+                Branch::Specular => {
+                    crops[0].iter_mut().for_each(|v| *v = sanitize(log_specular_of(e * specular_of_log(*v))))
+                }
             }
             crops[2].iter_mut().for_each(|v| *v = sanitize(*v * e));
         }

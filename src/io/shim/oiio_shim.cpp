@@ -78,6 +78,10 @@ const char* kpcn_oiio_last_error(void) { return g_last_error.c_str(); }
 
 int kpcn_oiio_version(void) { return OIIO_VERSION; }
 
+int kpcn_oiio_set_exr_threads(int n) {
+    return guarded([&] { return OIIO::attribute("exr_threads", n) ? ok() : fail("exr_threads refused"); });
+}
+
 int kpcn_input_open(const char* path, kpcn_input** out) {
     return guarded([&]() {
         *out = nullptr;

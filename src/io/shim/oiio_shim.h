@@ -51,6 +51,9 @@ const char* kpcn_oiio_last_error(void);
 /* OpenImageIO's version as an integer, e.g. 20407. */
 int kpcn_oiio_version(void);
 
+/* Sets OpenImageIO's global attribute `exr_threads` (OpenEXR's codec thread pool; -1 = none). */
+int kpcn_oiio_set_exr_threads(int n);
+
 int kpcn_input_open(const char* path, kpcn_input** out);
 void kpcn_input_close(kpcn_input* in);
 const char* kpcn_input_format_name(const kpcn_input* in);
