@@ -571,3 +571,24 @@ fn a_cancelled_file_denoise_leaves_no_output() {
     assert!(!out.exists());
     assert_eq!(crate::util::stray_files(dir.path(), &["in.exr"]), Vec::<String>::new());
 }
+
+/// A small `--max-memory` never cuts a wide network's frame into tiles that are mostly
+/// context (the budget is raised to a region of twice its reach instead): every tile but
+/// the last of a row or column is at least the reach on each side, for a band's tiles too.
+#[test]
+fn tiles_are_never_mostly_context_whatever_the_budget() {
+    let model = Model::resolve("default").unwrap();
+    let reach = model.arch.feature_radius().max(model.arch.kernel_radius());
+    let d = Denoiser::new(model, Options { max_memory_mb: 16, ..Options::default() }).unwrap();
+    let (w, h) = (1920, 1152);
+    for (tiles, rows) in [(d.tiles(w, 0..h, h), h), (d.band_tiles(w, 200..616, 816), 416)] {
+        assert!(tiles.len() > 1, "a 16 MB budget still tiles a 1080p frame");
+        for t in &tiles {
+            assert!(t.w >= reach || t.x + t.w == w, "{t:?} against a reach of {reach}");
+            assert!(t.h >= reach || t.y + t.h == rows, "{t:?} against a reach of {reach}");
+        }
+    }
+    // Compact's reach is small: the same budget gives it small tiles.
+    let c = Denoiser::new(Model::resolve("compact").unwrap(), Options { max_memory_mb: 16, ..Options::default() });
+    assert!(c.unwrap().tiles(w, 0..h, h).iter().all(|t| t.w < reach));
+}
