@@ -5,6 +5,7 @@
 #
 #   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
 #   scripts/train-v2.sh default           # `compact`, the 3-level network: one segment (below)
+#   scripts/train-v2.sh RUNG --one-segment # that one segment from the rung (WORK/RUNG-one)
 #   KPCN_WORK=DIR                         # work folder (default ./train-v2)
 #   KPCN_LADDER=DIR                       # the ladder's work folder (default ./train-ladder)
 #   KPCN_BASE=DIR                         # scripts/train-default.sh's (default ./train-default)
@@ -33,7 +34,7 @@
 #      files without variances (Blender's) get, with --permute-channels
 #      (WORK/RUNG-spatial): the model `--model auto` runs on such files.
 # For `default`, step 1 is scripts/train-default.sh and one segment follows, from its
-# weights: segment 1's and 3's recipes at once (--loss relative --augment --exposure auto,
+# weights (with --one-segment, the same follows the rung's step 1): segment 1's and 3's recipes at once (--loss relative --augment --exposure auto,
 # rare bright fireflies), 6,000 + 1,500 steps, lr 2e-4 / 5e-5 (WORK/default-auto).
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
@@ -88,8 +89,12 @@ segment() {
         --schedule cosine --loss relative --augment --checkpoint-every 200 --validate-every 1000 -q "$@"
     echo "$run/model.safetensors (log: $run/log.csv)"
 }
-if [ "$rung" = default ]; then
-    segment default-auto "$init" 6000 1500 2e-4 5e-5 \
+# One segment with segment 1's and 3's recipes at once: `default` (compact), and a rung
+# given --one-segment (WORK/RUNG-one).
+if [ "$rung" = default ] || [ "${2:-}" = --one-segment ]; then
+    name=$rung-one
+    [ "$rung" = default ] && name=default-auto
+    segment "$name" "$init" 6000 1500 2e-4 5e-5 \
         --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300
     exit 0
 fi
