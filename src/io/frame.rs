@@ -5,10 +5,6 @@ use super::oiio::{Attribute, Input, SampleFormat, SubimageInfo};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-/// Rows × channels decoded per read call: bounds the interleaved scratch buffer (64 rows
-/// of 16 channels, 16 of 64).
-const SCRATCH_SAMPLES_PER_COLUMN: usize = 1024;
-
 /// One named channel of a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plane {
@@ -451,9 +447,7 @@ fn read_planes(
     let (c1, k) = (last + 1, last + 1 - c0);
     let mut planes = vec![vec![0f32; w * (y1 - y0)]; channels.len()];
     let th = info.tile_height.max(1);
-    // Whole 16-row chunks (zip's) where the scratch allows.
-    let rows = (SCRATCH_SAMPLES_PER_COLUMN / k / 16).max(1) * 16;
-    let band = th * rows.div_ceil(th);
+    let band = th * super::rows_per_call(k).div_ceil(th);
     let mut scratch = Vec::new();
     // Read from the tile boundary at or before y0.
     let mut r0 = y0 / th * th;

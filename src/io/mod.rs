@@ -17,3 +17,10 @@ pub use oiio::{
 };
 pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
 pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};
+
+/// Rows of `channels` interleaved channels that one OpenImageIO read or write call moves:
+/// whole 16-row chunks (zip's) of at most 1024 samples per column (64 rows of 16
+/// channels, 16 of 64), so that the scratch buffer stays small and no chunk is split.
+fn rows_per_call(channels: usize) -> usize {
+    (1024 / channels.max(1) / 16).max(1) * 16
+}

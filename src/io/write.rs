@@ -10,10 +10,6 @@ use std::path::{Path, PathBuf};
 /// EXR compressions OpenImageIO accepts.
 pub const COMPRESSIONS: &[&str] = &["none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"];
 
-/// Rows × channels interleaved and handed to the writer at once (whole 16-row chunks):
-/// bounds the scratch buffer, which lives as long as the writer.
-const SCRATCH_SAMPLES_PER_COLUMN: usize = 1024;
-
 /// How to write a frame.
 #[derive(Debug, Clone, Default)]
 pub struct WriteOptions {
@@ -160,7 +156,7 @@ impl FrameWriter {
             );
         }
         let out = self.out.as_mut().expect("open until commit");
-        let band = (SCRATCH_SAMPLES_PER_COLUMN / nch.max(1) / 16).max(1) * 16;
+        let band = super::rows_per_call(nch);
         for r0 in (0..rows).step_by(band) {
             let r1 = (r0 + band).min(rows);
             self.scratch.clear();
