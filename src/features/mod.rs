@@ -426,9 +426,9 @@ impl Features {
         // and a hostile 1e30 from scaling the output (recomposition uses this albedo).
         let albedo = p.albedo.map(|a| a.map(|v| sanitize(v).clamp(0.0, 1.0)));
         let scaled = |f: f32| move |v: f32| if f == 1.0 { v } else { sanitize(v * f) };
-        let e2 = exposure * exposure;
-        let mut diffuse = p.diffuse.map(|d| d.map(|v| scaled(exposure)(sanitize(v))));
-        let mut specular = p.specular.map(|s| s.map(|v| scaled(exposure)(sanitize(v))));
+        let (radiance, variance) = (scaled(exposure), scaled(exposure * exposure));
+        let mut diffuse = p.diffuse.map(|d| d.map(|v| radiance(sanitize(v))));
+        let mut specular = p.specular.map(|s| s.map(|v| radiance(sanitize(v))));
 
         // Depth: non-finite → 0, ≥ 0, divided by the frame's largest finite depth.
         let scale = if max_depth > 0.0 { 1.0 / max_depth as f64 } else { 0.0 };
@@ -436,13 +436,13 @@ impl Features {
         let depth_variance = p.depth_variance.map(|v| sanitize((clean_variance_of(v) as f64 * scale * scale) as f32));
 
         // Variance divisions in f64, results sanitised back to the f32 range.
-        let mut d_variance = p.diffuse_variance.map(|v| scaled(e2)(clean_variance_of(v)));
+        let mut d_variance = p.diffuse_variance.map(|v| variance(clean_variance_of(v)));
         d_variance.par_iter_mut().enumerate().for_each(|(i, v)| {
             let a = (albedo[0][i] + albedo[1][i] + albedo[2][i]) as f64 / 3.0 + EPSILON as f64;
             *v = sanitize((*v as f64 / (a * a)) as f32);
         });
         // Delta method for ln(1 + s): σ² / (1 + s)², with the mean of (1 + s) over RGB.
-        let mut s_variance = p.specular_variance.map(|v| scaled(e2)(clean_variance_of(v)));
+        let mut s_variance = p.specular_variance.map(|v| variance(clean_variance_of(v)));
         s_variance.par_iter_mut().enumerate().for_each(|(i, v)| {
             let m = 1.0 + (0..3).map(|c| specular[c][i].max(0.0) as f64).sum::<f64>() / 3.0;
             *v = sanitize((*v as f64 / (m * m)) as f32);
