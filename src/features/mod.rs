@@ -332,12 +332,7 @@ pub fn max_depth(depth: &[f32]) -> f32 {
     depth.iter().fold(0f32, |m, &d| m.max(sanitize(d)))
 }
 
-/// Demodulated diffuse `diffuse / (albedo + ε)`.
-pub fn demodulate(diffuse: &[f32], albedo: &[f32]) -> Vec<f32> {
-    diffuse.par_iter().zip(albedo).map(|(&d, &a)| demodulated(d, a)).collect()
-}
-
-/// One pixel of [`demodulate`].
+/// Demodulated diffuse `diffuse / (albedo + ε)` of one pixel.
 pub fn demodulated(diffuse: f32, albedo: f32) -> f32 {
     diffuse / (albedo + EPSILON)
 }

@@ -2,7 +2,7 @@
 //! importance map, and batches of patches.
 
 use crate::features::{
-    Branch, ChannelOrder, EPSILON, Features, Orientation, log_specular, log_specular_of, sanitize, specular_of_log,
+    Branch, ChannelOrder, Features, Orientation, demodulated, log_specular, log_specular_of, sanitize, specular_of_log,
 };
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
@@ -190,7 +190,7 @@ impl Frame {
             reference.diffuse[c]
                 .iter()
                 .zip(&reference.albedo[c])
-                .map(|(d, a)| sanitize(sanitize(*d) / (sanitize(*a).max(0.0) + EPSILON)))
+                .map(|(d, a)| sanitize(demodulated(sanitize(*d), sanitize(*a).max(0.0))))
                 .collect()
         });
         let target_s = std::array::from_fn(|c| {
@@ -507,7 +507,7 @@ fn add_firefly(
         let i = c * plane + iy * si + ix;
         let before = input[i];
         let after = match b {
-            Branch::Diffuse => before + radiance / (albedo(c).max(0.0) + EPSILON),
+            Branch::Diffuse => before + demodulated(radiance, albedo(c).max(0.0)),
             Branch::Specular => (before.exp() + radiance).ln(),
         };
         let delta = sanitize(after - before);
