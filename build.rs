@@ -20,10 +20,19 @@ fn main() {
     println!("cargo::rerun-if-changed={SHIM_DIR}/oiio_shim.h");
     println!("cargo::rerun-if-changed={SHIM_DIR}/oiio_shim.cpp");
     println!("cargo::rerun-if-changed=build.rs");
-    // The C ABI's major version: hosts link against libkpcn.so.0 (scripts/install.sh makes
-    // the links), so a future incompatible libkpcn.so.1 can sit beside it.
-    let major = env::var("CARGO_PKG_VERSION_MAJOR").unwrap_or_else(|_| "0".into());
-    println!("cargo::rustc-cdylib-link-arg=-Wl,-soname,libkpcn.so.{major}");
+    // The C ABI's version (Cargo.toml's [package.metadata.kpcn] abi): hosts link against
+    // libkpcn.so.<abi> (scripts/install.sh makes the links), so libraries of incompatible
+    // ABIs sit side by side and a host never loads the wrong one.
+    println!("cargo::rerun-if-changed=Cargo.toml");
+    let manifest = std::fs::read_to_string("Cargo.toml").unwrap_or_default();
+    let abi = manifest
+        .lines()
+        .skip_while(|l| l.trim() != "[package.metadata.kpcn]")
+        .find_map(|l| l.trim().strip_prefix("abi = "))
+        .unwrap_or_else(|| die("Cargo.toml lacks [package.metadata.kpcn] abi = N"))
+        .to_string();
+    println!("cargo::rustc-cdylib-link-arg=-Wl,-soname,libkpcn.so.{abi}");
+    println!("cargo::rustc-env=KPCN_ABI={abi}");
 
     // Probe without emitting link flags yet: the shim's static library must come
     // before OpenImageIO on the link line.

@@ -57,6 +57,10 @@ typedef enum KpcnStatus {
    * A struct's `struct_size` is not one this library knows.
    */
   KPCN_ERROR_UNSUPPORTED_VERSION = 7,
+  /**
+   * Memory ran out. Nothing was written; lower `max_memory_mb` or free memory.
+   */
+  KPCN_ERROR_OUT_OF_MEMORY = 8,
 } KpcnStatus;
 
 /**
@@ -76,7 +80,8 @@ typedef enum KpcnFormat {
    */
   KPCN_FORMAT_FLOAT4 = 4,
   /**
-   * 1 × 16-bit half float.
+   * 1 × 16-bit half float. Written outputs saturate at ±65504, half's largest finite
+   * value (never inf).
    */
   KPCN_FORMAT_HALF = 257,
   /**
@@ -197,6 +202,12 @@ typedef struct KpcnFileOptions {
    * A [`KpcnLayout`] value.
    */
   int32_t layout;
+  /**
+   * Allow `output` to be `input` itself (the same file, links followed): the denoised
+   * layer is added to the render atomically. Without it such an output is refused with
+   * `KPCN_ERROR_INVALID_ARGUMENT`; it cannot be combined with `separate`.
+   */
+  bool in_place;
 } KpcnFileOptions;
 
 #ifdef __cplusplus

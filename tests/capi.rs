@@ -70,7 +70,7 @@ fn header_is_current_and_exports_are_prefixed() {
         assert!(declared, "`{sym}` is exported but not in kpcn.h");
     }
     let readelf = run(Command::new("readelf").arg("-d").arg(&so));
-    assert!(readelf.contains("Library soname: [libkpcn.so.0]"), "{readelf}");
+    assert!(readelf.contains(&format!("Library soname: [libkpcn.so.{}]", env!("KPCN_ABI"))), "{readelf}");
     run(Command::new("pkg-config").args(["--validate", "kpcn"]).env("PKG_CONFIG_PATH", prefix().join("lib/pkgconfig")));
 
     // The header compiles alone, as C and as C++.
@@ -237,4 +237,24 @@ fn the_library_core_depends_on_no_tool_crates() {
     for tool in ["clap", "indicatif", "anyhow", "plotters", "ctrlc"] {
         assert!(!tree.lines().any(|l| l.starts_with(&format!("{tool} v"))), "the core depends on {tool}:\n{tree}");
     }
+}
+
+/// `tests/c/integrity_test.c`: the file call never erases or overwrites a render (output =
+/// input or a link to it, colliding or empty layer names, an old host's smaller options
+/// struct), writes in place only when asked, and a frame too large for the address space
+/// fails with `KPCN_ERROR_OUT_OF_MEMORY` instead of aborting the host.
+#[test]
+fn c_hosts_cannot_erase_a_render_and_out_of_memory_is_a_status() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = dir.path().join("integrity");
+    let lib = prefix().join("lib");
+    run(Command::new("gcc")
+        .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-g"])
+        .arg(root().join("tests/c/integrity_test.c"))
+        .arg("-o")
+        .arg(&exe)
+        .args(pkg_config(&["--cflags", "--libs"]))
+        .arg(format!("-Wl,-rpath,{}", lib.display())));
+    let text = run(Command::new(&exe).arg(dir.path()).arg(EXAMPLE));
+    assert!(text.contains("all checks passed"), "{text}");
 }

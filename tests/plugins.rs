@@ -35,6 +35,13 @@ fn oiio_plugin_denoises_inside_oiiotool() {
     let bad = oiiotool(&["--iconfig", "kpcn:model", "/nonexistent/m.safetensors", &input, "-o", den.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && err.contains("/nonexistent/m.safetensors"), "{err}");
+    // A file the library refuses (no diffuse, albedo, …): the library's message reaches
+    // oiiotool's user, not only "File does not exist".
+    let rgb = dir.path().join("rgb.exr");
+    run(Command::new("oiiotool").args([EXAMPLE, "--ch", "R,G,B", "-o"]).arg(&rgb));
+    let bad = oiiotool(&[&format!("{}.kpcn", rgb.display()), "-o", den.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("missing channels diffuse.R"), "{err}");
     // Nothing is left in the temporary directory.
     let temp = std::env::temp_dir();
     let pid_files = std::fs::read_dir(&temp).unwrap().filter_map(|e| e.ok()).filter(|e| {
@@ -47,7 +54,8 @@ fn oiio_plugin_denoises_inside_oiiotool() {
 }
 
 /// The ImageBuf helper (`plugins/oiio/kpcn_imagebuf.h`) in a C++ tool: half ImageBufs
-/// picked by channel name give exactly `kpcn denoise` on the same passes.
+/// picked by channel name give exactly `kpcn denoise` (`auto`: `spatial` on passes without
+/// variances) on the same passes.
 #[test]
 fn oiio_imagebuf_helper_matches_the_cli() {
     let dir = tempfile::tempdir().unwrap();
@@ -65,7 +73,7 @@ fn oiio_imagebuf_helper_matches_the_cli() {
         .arg(&exe)
         .args(flags.split_whitespace())
         .arg(format!("-Wl,-rpath,{}", lib.display())));
-    let cli = cli_on_passes(dir.path(), "default");
+    let cli = cli_on_passes(dir.path(), "auto");
     let out = dir.path().join("out.exr");
     let text = run(Command::new(&exe).arg(dir.path().join("passes.exr")).arg(&out));
     assert!(text.contains("ok"), "{text}");

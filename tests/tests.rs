@@ -7,6 +7,7 @@ mod cli;
 mod denoise;
 mod eval;
 mod hard_cases;
+mod integrity;
 mod io_errors;
 mod io_roundtrip;
 mod layering;

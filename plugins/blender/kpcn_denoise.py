@@ -9,7 +9,7 @@
 #   Normal and Z (Combined is always there).
 #
 # The library is found through the add-on preference "Library", else $KPCN_LIBRARY, else
-# the system's libkpcn.so.0 (scripts/install.sh PREFIX, then LD_LIBRARY_PATH or ldconfig).
+# the system's libkpcn.so.1 (scripts/install.sh PREFIX, then LD_LIBRARY_PATH or ldconfig).
 import ctypes
 import ctypes.util
 import os
@@ -55,6 +55,7 @@ class _FileOptions(ctypes.Structure):
         ("separate", ctypes.c_bool),
         ("no_clobber", ctypes.c_bool),
         ("layout", ctypes.c_int32),
+        ("in_place", ctypes.c_bool),
     ]
 
 
@@ -67,9 +68,9 @@ def library(path=""):
     global _lib
     if _lib is not None:
         return _lib
-    path = path or os.environ.get("KPCN_LIBRARY") or ctypes.util.find_library("kpcn") or "libkpcn.so.0"
+    path = path or os.environ.get("KPCN_LIBRARY") or ctypes.util.find_library("kpcn") or "libkpcn.so.1"
     if os.path.isdir(path):
-        path = os.path.join(path, "libkpcn.so.0")
+        path = os.path.join(path, "libkpcn.so.1")
     try:
         lib = ctypes.CDLL(path)
     except OSError as e:
@@ -102,8 +103,9 @@ def _check(lib, status):
 
 
 def denoise_file(source, target, layer, threads=0, model="", lib_path=""):
-    """Denoises the Cycles multilayer EXR `source` into `target` (may be the same file: it
-    is replaced atomically), adding the layer `layer` and keeping every pass."""
+    """Denoises the Cycles multilayer EXR `source` into `target` (may be the same file: the
+    layer is then added in place, atomically), adding the layer `layer` and keeping every
+    pass."""
     lib = library(lib_path)
     options = _Options()
     lib.kpcn_options_init(ctypes.byref(options))
@@ -120,6 +122,7 @@ def denoise_file(source, target, layer, threads=0, model="", lib_path=""):
         lib.kpcn_file_options_init(ctypes.byref(fo))
         fo.layer = layer.encode()
         fo.layout = LAYOUT_CYCLES
+        fo.in_place = os.path.realpath(source) == os.path.realpath(target)
         _check(lib, lib.kpcn_denoise_file(handle, os.fsencode(source), os.fsencode(target), ctypes.byref(fo)))
     finally:
         lib.kpcn_denoiser_free(handle)
@@ -140,7 +143,7 @@ def _prefs(context):
 class KpcnPreferences(bpy.types.AddonPreferences):
     bl_idname = __name__
     library: bpy.props.StringProperty(name="Library", subtype="FILE_PATH",
-                                      description="libkpcn.so.0, or the folder holding it (empty: $KPCN_LIBRARY or the system's)")
+                                      description="libkpcn.so.1, or the folder holding it (empty: $KPCN_LIBRARY or the system's)")
     model: bpy.props.StringProperty(name="Model", description="A model name or .safetensors file (empty: auto, which picks `spatial`, trained for files without variance passes)")
     threads: bpy.props.IntProperty(name="Threads", min=0, default=0, description="0 = every core")
 
@@ -188,26 +191,26 @@ class KPCN_OT_denoise_render(bpy.types.Operator):
             return {"CANCELLED"}
         settings = scene.render.image_settings
         saved = (settings.file_format, settings.color_depth)
-        folder = tempfile.mkdtemp(prefix="kpcn-blender-")
-        source, target = os.path.join(folder, "render.exr"), os.path.join(folder, "denoised.exr")
-        try:
-            settings.file_format, settings.color_depth = "OPEN_EXR_MULTILAYER", "32"
-            result.save_render(source, scene=scene)
-            denoise_file(source, target, output_layer(scene), **_settings_of(context))
-        except (KpcnError, RuntimeError) as e:
-            # RuntimeError: save_render found no render to save.
-            self.report({"ERROR"}, f"kpcn: {e}")
-            return {"CANCELLED"}
-        finally:
-            settings.file_format, settings.color_depth = saved
-            if os.path.exists(source):
-                os.remove(source)
         old = bpy.data.images.get("kpcn Denoised")
-        if old is not None:
-            bpy.data.images.remove(old)
-        # The file stays for this session (pack the image to keep it in the .blend).
-        image = bpy.data.images.load(target)
-        image.name = "kpcn Denoised"
+        # The files live in a private folder removed whatever happens: the result is packed
+        # into the .blend, so nothing is left in /tmp.
+        with tempfile.TemporaryDirectory(prefix="kpcn-blender-") as folder:
+            source, target = os.path.join(folder, "render.exr"), os.path.join(folder, "denoised.exr")
+            try:
+                settings.file_format, settings.color_depth = "OPEN_EXR_MULTILAYER", "32"
+                result.save_render(source, scene=scene)
+                denoise_file(source, target, output_layer(scene), **_settings_of(context))
+            except (KpcnError, RuntimeError) as e:
+                # RuntimeError: save_render found no render to save.
+                self.report({"ERROR"}, f"kpcn: {e}")
+                return {"CANCELLED"}
+            finally:
+                settings.file_format, settings.color_depth = saved
+            if old is not None:
+                bpy.data.images.remove(old)
+            image = bpy.data.images.load(target)
+            image.name = "kpcn Denoised"
+            image.pack()
         self.report({"INFO"}, f"kpcn: denoised into the image \"kpcn Denoised\", pass {output_layer(scene)}")
         return {"FINISHED"}
 

@@ -36,13 +36,21 @@ struct ImageBufInputs {
     const OIIO::ImageBuf* depth = nullptr;
 };
 
-/// Denoises `in` into `out` (the beauty). `options` NULL = the defaults (embedded model,
-/// every core). On failure returns false and says why in `error`.
+/// Denoises `in` into `out` (the beauty). `options` NULL = the defaults with model `auto`
+/// (as `kpcn denoise`: `spatial` for buffers without variances, which ImageBufs of a
+/// renderer's passes usually are), every core. On failure returns false and says why in
+/// `error`.
 inline bool denoise(const ImageBufInputs& in, OIIO::ImageBuf& out, std::string& error,
                     const KpcnOptions* options = nullptr) {
     struct Free {
         void operator()(KpcnDenoiser* d) const { kpcn_denoiser_free(d); }
     };
+    KpcnOptions defaults;
+    if (!options) {
+        kpcn_options_init(&defaults);
+        defaults.model_name = "auto";
+        options = &defaults;
+    }
     KpcnDenoiser* raw = nullptr;
     if (kpcn_denoiser_new(options, &raw) != KPCN_OK) return error = kpcn_last_error(), false;
     std::unique_ptr<KpcnDenoiser, Free> d(raw);

@@ -12,6 +12,7 @@
 #include <OpenImageIO/imageio.h>
 
 #include <atomic>
+#include <cstdio>
 #include <cstring>
 #include <memory>
 #include <string>
@@ -63,6 +64,14 @@ private:
         errorfmt("{}", what);
         return false;
     }
+    // A failed open() of FILE.exr.kpcn: oiiotool checks that the path exists and, since
+    // this one never does, reports "File does not exist" instead of the plugin's error
+    // (iinfo shows it). So the library's message also goes to stderr, where either host's
+    // user sees why.
+    bool fail_open(const std::string& what) {
+        std::fprintf(stderr, "kpcn ERROR: %s\n", what.c_str());
+        return fail(what);
+    }
 };
 
 bool KpcnInput::open(const std::string& name, ImageSpec& newspec, const ImageSpec& config) {
@@ -78,7 +87,7 @@ bool KpcnInput::open(const std::string& name, ImageSpec& newspec, const ImageSpe
         options.model_name = model.empty() ? "auto" : model.c_str();  // auto: as `kpcn denoise`
     options.threads = static_cast<uint32_t>(std::max(0, config.get_int_attribute("kpcn:threads", 0)));
     KpcnDenoiser* raw = nullptr;
-    if (kpcn_denoiser_new(&options, &raw) != KPCN_OK) return fail(std::string("kpcn: ") + kpcn_last_error());
+    if (kpcn_denoiser_new(&options, &raw) != KPCN_OK) return fail_open(std::string("kpcn: ") + kpcn_last_error());
     std::unique_ptr<KpcnDenoiser, FreeDenoiser> denoiser(raw);
 
     // kpcn_denoise_file maps the renderer's channels and streams the frame in bands; its
@@ -91,7 +100,7 @@ bool KpcnInput::open(const std::string& name, ImageSpec& newspec, const ImageSpe
     fo.separate = true;
     fo.layer = "denoised";
     if (kpcn_denoise_file(denoiser.get(), source.c_str(), temp.path.c_str(), &fo) != KPCN_OK)
-        return fail(std::string("kpcn: ") + kpcn_last_error());
+        return fail_open(std::string("kpcn: ") + kpcn_last_error());
 
     auto in = ImageInput::open(temp.path);
     if (!in) return fail("kpcn: cannot read back the denoised layer: " + OIIO::geterror());

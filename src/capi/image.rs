@@ -15,7 +15,8 @@ pub enum KpcnFormat {
     KpcnFormatFloat3 = 3,
     /// 4 × 32-bit float (the fourth, e.g. alpha, is neither read nor written).
     KpcnFormatFloat4 = 4,
-    /// 1 × 16-bit half float.
+    /// 1 × 16-bit half float. Written outputs saturate at ±65504, half's largest finite
+    /// value (never inf).
     KpcnFormatHalf = 0x101,
     /// 3 × 16-bit half float.
     KpcnFormatHalf3 = 0x103,
@@ -140,7 +141,12 @@ impl HostImage {
                     // SAFETY: as in `read`.
                     unsafe {
                         match self.format.sample_bytes() {
-                            2 => std::ptr::write_unaligned(p as *mut u16, f16::from_f32(v).to_bits()),
+                            // Saturated: a highlight above half's range stays the
+                            // brightest finite half instead of becoming inf.
+                            2 => std::ptr::write_unaligned(
+                                p as *mut u16,
+                                f16::from_f32(v.clamp(-f16::MAX.to_f32(), f16::MAX.to_f32())).to_bits(),
+                            ),
                             _ => std::ptr::write_unaligned(p as *mut f32, v),
                         }
                     }
@@ -158,6 +164,14 @@ impl HostImage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn half_outputs_saturate_instead_of_overflowing_to_inf() {
+        let mut buf = [0u8; 2 * 3];
+        let img = HostImage::new("x", buf.as_mut_ptr(), KpcnFormat::KpcnFormatHalf3 as i32, 1, 1, 0, 0).unwrap();
+        img.write(&[vec![1e6], vec![-7e4], vec![2.0]]);
+        assert_eq!(img.read(3), vec![vec![65504.0], vec![-65504.0], vec![2.0]]);
+    }
 
     #[test]
     fn bottom_up_half_images_round_trip() {

@@ -22,7 +22,7 @@ pub use image::KpcnFormat;
 pub use status::{KpcnStatus, kpcn_last_error, kpcn_status_string};
 
 use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
-use crate::io::layout::Layout;
+use crate::io::layout::{KpcnInputs, Layout};
 use crate::io::{NamedImages, WriteOptions};
 use crate::model::Model;
 use image::HostImage;
@@ -102,6 +102,10 @@ pub struct KpcnFileOptions {
     pub no_clobber: bool,
     /// A [`KpcnLayout`] value.
     pub layout: i32,
+    /// Allow `output` to be `input` itself (the same file, links followed): the denoised
+    /// layer is added to the render atomically. Without it such an output is refused with
+    /// `KPCN_ERROR_INVALID_ARGUMENT`; it cannot be combined with `separate`.
+    pub in_place: bool,
 }
 
 /// A denoiser: a model, its thread pool, and the images set on it. Opaque to C.
@@ -239,6 +243,7 @@ impl Default for KpcnFileOptions {
             separate: false,
             no_clobber: false,
             layout: KpcnLayout::KpcnLayoutAuto as i32,
+            in_place: false,
         }
     }
 }
@@ -499,6 +504,11 @@ impl State {
                 i.width, i.height, self.inputs[0].0
             )));
         }
+        let denoiser = self.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
+        // The host's images are copied, then made the network's inputs: checked before
+        // any of it is allocated, so that a frame too large fails instead of aborting.
+        let copies: usize = self.inputs.iter().map(|(_, i)| i.channels()).sum::<usize>() * w * h * 4;
+        crate::denoise::reserve_working_memory(copies + KpcnInputs::bytes(w, h) + denoiser.working_bytes(w, 0..h, h))?;
         let mut images = NamedImages::new(w, h);
         for (name, image) in &self.inputs {
             // A variance may come as 1 channel or 3 (averaged); the means take what they need.
@@ -507,7 +517,6 @@ impl State {
             images.insert(name, image.read(wanted))?;
         }
         let inputs = images.inputs()?;
-        let denoiser = self.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
         let result = denoiser.denoise(&inputs, &self.progress())?;
         for (name, image) in &self.outputs {
             let planes = match name.as_str() {
@@ -570,6 +579,7 @@ pub unsafe extern "C" fn kpcn_denoise_file(
             layer: optional_text(o.layer, "options.layer")?.unwrap_or("denoised").to_string(),
             aovs: o.aovs,
             separate: o.separate,
+            in_place: o.in_place,
             write: WriteOptions { compression: None, no_clobber: o.no_clobber },
             band_rows: None,
         };

@@ -26,6 +26,8 @@ pub enum KpcnStatus {
     KpcnErrorInternal = 6,
     /// A struct's `struct_size` is not one this library knows.
     KpcnErrorUnsupportedVersion = 7,
+    /// Memory ran out. Nothing was written; lower `max_memory_mb` or free memory.
+    KpcnErrorOutOfMemory = 8,
 }
 
 /// An error on its way to the caller: a status and a message.
@@ -55,6 +57,7 @@ impl From<crate::io::IoError> for Failure {
         let status = match e {
             IoError::BadImage { .. } => KpcnStatus::KpcnErrorInvalidArgument,
             IoError::MissingImages { .. } | IoError::MissingChannels { .. } => KpcnStatus::KpcnErrorInvalidState,
+            IoError::OutOfMemory { .. } => KpcnStatus::KpcnErrorOutOfMemory,
             _ => KpcnStatus::KpcnErrorIo,
         };
         Failure::new(status, e.to_string())
@@ -74,6 +77,7 @@ impl From<crate::denoise::DenoiseError> for Failure {
             DenoiseError::Cancelled => KpcnStatus::KpcnErrorCancelled,
             DenoiseError::Model(_) => KpcnStatus::KpcnErrorModel,
             DenoiseError::Threads(_) | DenoiseError::Empty => KpcnStatus::KpcnErrorInvalidArgument,
+            DenoiseError::OutOfMemory(_) => KpcnStatus::KpcnErrorOutOfMemory,
         };
         Failure::new(status, e.to_string())
     }
@@ -84,8 +88,9 @@ impl From<crate::denoise::FileError> for Failure {
         use crate::denoise::FileError;
         match e {
             FileError::Io(io) => io.into(),
-            FileError::Denoise { path, source } => {
-                let inner = Failure::from(source);
+            FileError::Refused { .. } => Failure::invalid(e.to_string()),
+            FileError::Denoise { path, cause } => {
+                let inner = Failure::from(cause);
                 Failure::new(inner.status, format!("{}: {}", path.display(), inner.message))
             }
         }
@@ -141,6 +146,7 @@ pub extern "C" fn kpcn_status_string(status: i32) -> *const c_char {
         5 => c"cancelled",
         6 => c"internal error",
         7 => c"unsupported struct version",
+        8 => c"out of memory",
         _ => c"unknown status",
     };
     s.as_ptr()

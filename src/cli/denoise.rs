@@ -2,8 +2,7 @@
 
 use super::Usage;
 use super::sequence::{Pattern, gaps, parse_frames};
-use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
-use crate::io::atomic::{check_writable, same_file};
+use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress, check_output};
 use crate::io::layout::{Layout, Mapping};
 use crate::io::{FrameReader, WriteOptions};
 use crate::model::Model;
@@ -73,6 +72,11 @@ pub struct DenoiseArgs {
     /// Print what would be done, do nothing.
     #[arg(short = 'n', long)]
     pub dry_run: bool,
+    /// EXR compression of the output: none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa,
+    /// dwab. Default: the input's when it is lossless, else zip, so that the channels copied
+    /// from a lossy (DWA, B44) input are not re-encoded lossily.
+    #[arg(long, value_name = "NAME")]
+    pub compression: Option<String>,
     /// Refuse to overwrite existing outputs.
     #[arg(long)]
     pub no_clobber: bool,
@@ -148,20 +152,14 @@ fn jobs(args: &DenoiseArgs) -> anyhow::Result<Vec<(PathBuf, PathBuf)>> {
 }
 
 /// Refuses, before any work, outputs that cannot be written or that would replace their
-/// input without `--in-place`; every problem is listed.
-fn check_outputs(jobs: &[(PathBuf, PathBuf)], in_place: bool) -> anyhow::Result<()> {
-    let mut problems = Vec::new();
-    for (input, output) in jobs {
-        if same_file(input, output) && !in_place {
-            problems.push(format!(
-                "{}: is the input {} itself — the render would be replaced; give --in-place to add the denoised layer to it, or choose another output",
-                output.display(),
-                input.display()
-            ));
-        } else if let Err(why) = check_writable(output) {
-            problems.push(format!("{}: {why}", output.display()));
-        }
-    }
+/// input without `--in-place` ([`check_output`]); every problem is listed.
+fn check_outputs(jobs: &[(PathBuf, PathBuf)], args: &DenoiseArgs) -> anyhow::Result<()> {
+    let opts = FileOptions { in_place: args.in_place, separate: args.separate, ..FileOptions::default() };
+    let problems: Vec<String> = jobs
+        .iter()
+        .filter_map(|(input, output)| check_output(input, output, &opts).err())
+        .map(|e| e.to_string())
+        .collect();
     match problems.len() {
         0 => Ok(()),
         1 => bail!("{}", problems[0]),
@@ -178,7 +176,12 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     if args.view_layer.as_deref() == Some("all") && args.layer.is_some() {
         return Err(Usage("--view-layer all names each result <ViewLayer>.Denoised: drop --layer".into()).into());
     }
-    check_outputs(&jobs, args.in_place)?;
+    if let Some(c) = args.compression.as_deref().filter(|c| !crate::io::COMPRESSIONS.contains(c)) {
+        return Err(
+            Usage(format!("--compression {c}: unknown — use one of {}", crate::io::COMPRESSIONS.join(", "))).into()
+        );
+    }
+    check_outputs(&jobs, args)?;
     if args.skip_existing {
         let before = jobs.len();
         jobs.retain(|(_, o)| !FrameReader::is_complete(o));
@@ -415,7 +418,9 @@ fn denoise_view_layer(
         layer,
         aovs: args.aovs,
         separate: args.separate,
-        write: WriteOptions { compression: None, no_clobber: args.no_clobber && first },
+        // Later view layers are added to the output the first one wrote.
+        in_place: args.in_place || !first,
+        write: WriteOptions { compression: args.compression.clone(), no_clobber: args.no_clobber && first },
         band_rows: None,
     };
     let (w, h) = job.size();
@@ -432,6 +437,27 @@ fn denoise_view_layer(
                 what.push(format!("{} samples outside {range} clamped", r.out_of_range));
             }
             bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
+        }
+    }
+    let (pixels, sum, beauty) = report.remainder;
+    if pixels > 0 && !args.quiet {
+        let share = 100.0 * sum / beauty.abs().max(f64::MIN_POSITIVE);
+        if share < -1.0 {
+            // Components brighter than the beauty are not emission: the passes disagree.
+            bar.suspend(|| {
+                eprintln!(
+                    "kpcn: warning: {}: diffuse + specular exceed the beauty by {:.1} % in {pixels} pixels — the passes disagree (written from different renders or samples?); the difference is kept in the output as it was",
+                    input.display(),
+                    -share
+                )
+            });
+        } else if args.verbose {
+            bar.suspend(|| {
+                println!(
+                    "{}: the beauty holds {share:.2} % of its energy beyond diffuse + specular (emission, volumes, …) in {pixels} pixels: carried to the output undenoised",
+                    input.display()
+                )
+            });
         }
     }
     if args.verbose {

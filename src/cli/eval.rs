@@ -105,33 +105,52 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         relmse: rows.iter().map(|r| r.2.relmse).sum::<f64>() / n,
         psnr: rows.iter().map(|r| r.2.psnr).sum::<f64>() / n,
         one_minus_ssim: rows.iter().map(|r| r.2.one_minus_ssim).sum::<f64>() / n,
+        relmse_trimmed: [0, 1].map(|k| rows.iter().map(|r| r.2.relmse_trimmed[k]).sum::<f64>() / n),
     };
     match args.format {
         Format::Table => {
             let width = rows.iter().map(|r| r.0.len()).max().unwrap_or(4).max(4);
-            println!("{:<width$}  {:<10} {:>10} {:>8} {:>8}", "file", "layer", "relMSE", "PSNR", "1-SSIM");
+            println!(
+                "{:<width$}  {:<10} {:>10} {:>8} {:>8} {:>12} {:>12}",
+                "file", "layer", "relMSE", "PSNR", "1-SSIM", "relMSE-0.1%", "relMSE-1%"
+            );
+            let line = |f: &str, l: &str, m: &Metrics| {
+                println!(
+                    "{f:<width$}  {l:<10} {:>10.5} {:>8.3} {:>8.5} {:>12.5} {:>12.5}",
+                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1]
+                )
+            };
             for (f, l, m) in &rows {
-                println!("{f:<width$}  {l:<10} {:>10.5} {:>8.3} {:>8.5}", m.relmse, m.psnr, m.one_minus_ssim);
+                line(f, l, m);
             }
             if rows.len() > 1 {
-                println!(
-                    "{:<width$}  {:<10} {:>10.5} {:>8.3} {:>8.5}",
-                    "mean", "", mean.relmse, mean.psnr, mean.one_minus_ssim
-                );
+                line("mean", "", &mean);
             }
         }
         Format::Csv => {
-            println!("file,layer,relmse,psnr,one_minus_ssim");
+            println!("file,layer,relmse,psnr,one_minus_ssim,relmse_drop_worst_0.1pct,relmse_drop_worst_1pct");
             for (f, l, m) in &rows {
-                println!("{f},{l},{},{},{}", m.relmse, m.psnr, m.one_minus_ssim);
+                println!(
+                    "{f},{l},{},{},{},{},{}",
+                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1]
+                );
             }
         }
         Format::Json => {
-            let item = |f: &str, l: &str, m: &Metrics| serde_json::json!({"file": f, "layer": l, "relmse": m.relmse, "psnr": m.psnr, "one_minus_ssim": m.one_minus_ssim});
+            let metrics = |m: &Metrics| {
+                serde_json::json!({"relmse": m.relmse, "psnr": m.psnr, "one_minus_ssim": m.one_minus_ssim,
+                    "relmse_drop_worst_0.1pct": m.relmse_trimmed[0], "relmse_drop_worst_1pct": m.relmse_trimmed[1]})
+            };
+            let item = |f: &str, l: &str, m: &Metrics| {
+                let mut v = metrics(m);
+                v["file"] = f.into();
+                v["layer"] = l.into();
+                v
+            };
             let doc = serde_json::json!({
                 "reference": args.reference.display().to_string(),
                 "files": rows.iter().map(|(f, l, m)| item(f, l, m)).collect::<Vec<_>>(),
-                "mean": {"relmse": mean.relmse, "psnr": mean.psnr, "one_minus_ssim": mean.one_minus_ssim},
+                "mean": metrics(&mean),
             });
             println!("{doc:#}");
         }

@@ -32,10 +32,10 @@ impl Pattern {
         None
     }
 
-    /// The path of frame `f`.
+    /// The path of frame `f`. The width counts a negative frame's sign, as printf's `%04d`
+    /// (and so oiiotool, Blender and Houdini) writes it: frame −1 of `####` is `-001`.
     pub fn path(&self, f: i64) -> PathBuf {
-        let digits = if f < 0 { format!("-{:0w$}", -f, w = self.width) } else { format!("{f:0w$}", w = self.width) };
-        PathBuf::from(format!("{}{digits}{}", self.prefix, self.suffix))
+        PathBuf::from(format!("{}{f:0w$}{}", self.prefix, self.suffix, w = self.width))
     }
 
     /// Frames whose files exist, found by listing the folder.
@@ -128,6 +128,9 @@ mod tests {
         assert_eq!(Pattern::parse("render.#.exr").unwrap().path(12), PathBuf::from("render.0012.exr"));
         assert_eq!(Pattern::parse("render.@@@.exr").unwrap().path(5), PathBuf::from("render.005.exr"));
         assert_eq!(Pattern::parse("render.%04d.exr").unwrap().path(42), PathBuf::from("render.0042.exr"));
+        // Negative frames as printf writes them (the sign counts towards the width).
+        assert_eq!(Pattern::parse("n.%04d.exr").unwrap().path(-1), PathBuf::from("n.-001.exr"));
+        assert_eq!(Pattern::parse("n.####.exr").unwrap().path(-12), PathBuf::from("n.-012.exr"));
         assert_eq!(Pattern::parse("render.%d.exr").unwrap().path(42), PathBuf::from("render.42.exr"));
         assert!(Pattern::parse("render.0001.exr").is_none());
     }

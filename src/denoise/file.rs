@@ -28,6 +28,10 @@ pub struct FileOptions {
     pub aovs: bool,
     /// Write only the new layers (and the metadata), not a copy of the input channels.
     pub separate: bool,
+    /// Allow the output to be the input itself (links followed): the new layers are added
+    /// to the render atomically. Without it such an output is refused
+    /// ([`check_output`]); it cannot be combined with `separate`.
+    pub in_place: bool,
     /// Compression and overwrite policy.
     pub write: WriteOptions,
     /// Rows per band (testing; normally derived from the denoiser's memory budget).
@@ -40,6 +44,7 @@ impl Default for FileOptions {
             layer: "denoised".into(),
             aovs: false,
             separate: false,
+            in_place: false,
             write: WriteOptions::default(),
             band_rows: None,
         }
@@ -52,14 +57,74 @@ pub enum FileError {
     /// Reading, mapping or writing failed.
     #[error(transparent)]
     Io(#[from] IoError),
+    /// The output, the options or the layer name would lose data of the render; nothing
+    /// was written.
+    #[error("{}: {why}", path.display())]
+    Refused {
+        /// The output (or the input, for a layer name that collides with its passes).
+        path: PathBuf,
+        /// Why, and what to do.
+        why: String,
+    },
     /// The denoiser failed or was cancelled.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {cause}", path.display())]
     Denoise {
         /// The input file.
         path: PathBuf,
-        /// Why.
-        source: DenoiseError,
+        /// Why (in the message, not a separate source: a report of the chain would say
+        /// it twice).
+        cause: DenoiseError,
     },
+}
+
+/// Refuses, before any work, an `output` that would lose the render `input` or cannot be
+/// written: the input itself (the same file, links followed) unless `opts.in_place`, and
+/// not even then with `opts.separate`; a folder, a missing folder, a file or folder you
+/// cannot write. Every entrance checks this (`FileJob::run` does; the CLI also lists every
+/// frame's problem before the first frame runs).
+pub fn check_output(input: &Path, output: &Path, opts: &FileOptions) -> Result<(), FileError> {
+    let refuse = |why: String| Err(FileError::Refused { path: output.into(), why });
+    let same = crate::io::atomic::same_file(input, output);
+    if same && opts.separate {
+        return refuse(format!(
+            "is the input {} itself, and a separate output holds only the new layers — the render would be erased; choose another output",
+            input.display()
+        ));
+    }
+    if same && !opts.in_place {
+        return refuse(format!(
+            "is the input {} itself — the render would be replaced; ask for in-place writing (`--in-place`, the C ABI's `in_place`) to add the denoised layer to it, or choose another output",
+            input.display()
+        ));
+    }
+    crate::io::atomic::check_writable(output).or_else(refuse)
+}
+
+/// Refuses a layer name that is empty or malformed, or whose channels (`NAME.R/G/B`, and
+/// with `aovs` `NAME_diffuse.*`, `NAME_specular.*`) would replace a pass of the render: one
+/// the network reads, or any channel of a file kpcn did not write (`kpcn:model` absent).
+/// A file kpcn wrote may have its own earlier result replaced.
+fn check_layer(reader: &FrameReader, mapping: &Mapping, opts: &FileOptions) -> Result<(), FileError> {
+    let path = reader.header().display_path();
+    let refuse = |why: String| Err(FileError::Refused { path: path.clone(), why });
+    let name = &opts.layer;
+    if name.is_empty() || name.trim() != name || name.starts_with('.') || name.ends_with('.') {
+        return refuse(format!(
+            "the layer name `{name}` is empty or malformed (channels would be named `{name}.R`) — give a name such as `denoised`"
+        ));
+    }
+    let read = mapping.channels();
+    let written_by_kpcn = reader.header().attribute("kpcn:model").is_some();
+    for n in new_layer_names(name, opts.aovs) {
+        if let Some(existing) = reader.channel_names().find(|c| *c == n) {
+            if read.iter().any(|r| r == existing) || !written_by_kpcn {
+                return refuse(format!(
+                    "the layer `{name}` would overwrite the render's channel `{existing}` — choose another layer name (`--layer`, the C ABI's `layer`)"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// What [`FileJob::run`] saw on the way: the inputs' repaired samples, per input (name,
@@ -68,6 +133,9 @@ pub enum FileError {
 pub struct FileReport {
     /// Inputs with repaired samples.
     pub repairs: Vec<(&'static str, &'static str, features::Repairs)>,
+    /// What the beauty held beyond diffuse + specular, carried to the output undenoised:
+    /// its pixels and sum, and the beauty's sum ([`crate::io::layout::Remainder`]).
+    pub remainder: (usize, f64, f64),
 }
 
 /// One input file, opened and mapped, ready to denoise.
@@ -151,11 +219,23 @@ impl FileJob {
     ) -> Result<FileReport, FileError> {
         let (w, h) = self.size();
         let path = self.reader.header().display_path();
+        check_output(&path, output, opts)?;
+        check_layer(&self.reader, &self.mapping, opts)?;
         if w == 0 || h == 0 {
-            return Err(FileError::Denoise { path, source: DenoiseError::Empty });
+            return Err(FileError::Denoise { path, cause: DenoiseError::Empty });
         }
         let band = self.band_rows(denoiser, opts);
         let bands: Vec<(usize, usize)> = (0..h).step_by(band).map(|a| (a, (a + band).min(h))).collect();
+        let halo = denoiser.halo();
+        // The largest band's working memory (context rows included), checked before the
+        // output exists.
+        let with_context = |&(a, b): &(usize, usize)| (a.saturating_sub(halo), (b + halo).min(h));
+        if let Some(&(a, b)) = bands.iter().max_by_key(|ab| with_context(ab).1 - with_context(ab).0) {
+            let (c0, c1) = with_context(&(a, b));
+            let inputs = crate::io::layout::KpcnInputs::bytes(w, c1 - c0);
+            super::reserve_working_memory(inputs + denoiser.working_bytes(w, a - c0..b - c0, c1 - c0))
+                .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
+        }
         let needed = self.mapping.channels();
         let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
 
@@ -205,7 +285,6 @@ impl FileJob {
             .collect();
         let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
 
-        let halo = denoiser.halo();
         let tiles_in = |a: usize, b: usize| {
             let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
             denoiser.band_tiles(w, a - c0..b - c0, c1 - c0).len()
@@ -213,6 +292,7 @@ impl FileJob {
         let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
+        let mut report = FileReport::default();
         // Parts are written one after another (as EXR requires), each streamed in bands;
         // only the beauty's part runs the network.
         for (p, (_, channels)) in parts.iter().enumerate() {
@@ -249,11 +329,16 @@ impl FileJob {
                         None => totals.push((name, range, r)),
                     }
                 }
+                let remainder = inputs.remainder(a - c0..b - c0);
+                report.remainder.0 += remainder.pixels;
+                report.remainder.1 += remainder.sum;
+                report.remainder.2 += remainder.beauty;
                 let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
-                let d = denoiser
+                let mut d = denoiser
                     .denoise_band(&f, a - c0..b - c0, &step)
-                    .map_err(|source| FileError::Denoise { path: path.clone(), source })?;
+                    .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
+                d.carry(&remainder);
                 drop(f);
                 done += tiles_in(a, b);
                 let new = new_planes(&d, opts.aovs);
@@ -270,7 +355,8 @@ impl FileJob {
         }
         writer.commit()?;
         totals.retain(|t| t.2 != features::Repairs::default());
-        Ok(FileReport { repairs: totals })
+        report.repairs = totals;
+        Ok(report)
     }
 
     /// The largest finite depth of the whole frame and, when `exposure`, its exposure (of

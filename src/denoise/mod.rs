@@ -6,7 +6,7 @@
 //! application's pool is left alone.
 
 use crate::features::{Branch, EPSILON, Features, FrameStats, INPUT_CHANNELS, sanitize};
-use crate::io::layout::KpcnInputs;
+use crate::io::layout::{KpcnInputs, Remainder};
 use crate::kernel;
 use crate::model::{Design, Exposure, Kind, Model, ModelError, Specular};
 use crate::tile::{self, Tile};
@@ -15,7 +15,7 @@ use std::borrow::Cow;
 
 mod file;
 
-pub use file::{FileError, FileJob, FileOptions, FileReport};
+pub use file::{FileError, FileJob, FileOptions, FileReport, check_output};
 
 /// How to run.
 #[derive(Debug, Clone)]
@@ -64,6 +64,21 @@ pub enum DenoiseError {
     /// An empty frame.
     #[error("the frame is empty (0 pixels)")]
     Empty,
+    /// The working memory could not be had: refused before any work, instead of an abort
+    /// half-way through.
+    #[error("out of memory: the denoise needs about {} MB of working memory and the process cannot get it — lower --max-memory (the C ABI's max_memory_mb, the plugins' max_memory) or free memory; the input itself is fine", .0 >> 20)]
+    OutOfMemory(usize),
+}
+
+/// Checks that `bytes` of working memory can be had, by asking the allocator for them
+/// once (and giving them back): under an address-space limit (`ulimit -v`, a farm's
+/// cgroup) a denoise that would run out half-way, which Rust answers with an abort, is
+/// refused before it starts with [`DenoiseError::OutOfMemory`].
+pub fn reserve_working_memory(bytes: usize) -> Result<(), DenoiseError> {
+    // A quarter more: the allocator's own overhead and the small buffers around the big ones.
+    let bytes = bytes.saturating_add(bytes / 4);
+    let mut probe: Vec<u8> = Vec::new();
+    probe.try_reserve_exact(bytes).map_err(|_| DenoiseError::OutOfMemory(bytes))
 }
 
 /// A denoised frame: colour and the two components it is the exact sum of.
@@ -79,6 +94,20 @@ pub struct Denoised {
     pub diffuse: [Vec<f32>; 3],
     /// Denoised specular radiance.
     pub specular: [Vec<f32>; 3],
+}
+
+impl Denoised {
+    /// Adds what the beauty held beyond diffuse + specular, undenoised, to the colour and
+    /// the specular, so that the colour keeps it and still equals diffuse + specular.
+    pub fn carry(&mut self, remainder: &Remainder) {
+        let Some(planes) = &remainder.planes else { return };
+        for (c, r) in planes.iter().enumerate() {
+            for ((col, s), r) in self.color[c].iter_mut().zip(&mut self.specular[c]).zip(r) {
+                *col += r;
+                *s += r;
+            }
+        }
+    }
 }
 
 /// A model plus how to run it.
@@ -166,13 +195,33 @@ impl Denoiser {
         tile::plan(width, h, tw, th)
     }
 
+    /// Working bytes of a band of `total_rows` rows (context included) of a `width`-wide
+    /// frame whose `rows` are denoised, beyond its inputs: the features, the largest tile's
+    /// network evaluation, and the results. [`Denoiser::denoise`] on a whole frame is one
+    /// band.
+    pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
+        let arch = &self.model.arch;
+        let r = self.reach().radius;
+        let tile = self
+            .band_tiles(width, rows.clone(), total_rows)
+            .iter()
+            .map(|t| arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h))
+            .max()
+            .unwrap_or(0);
+        // Three results of three planes each.
+        Features::bytes(width, total_rows) + tile + width * rows.len() * 4 * 9
+    }
+
     /// Denoises one frame. `progress` is called after every tile, on the calling thread;
     /// returning `false` cancels.
     pub fn denoise(&self, inputs: &KpcnInputs, progress: &dyn Fn(Progress) -> bool) -> Result<Denoised, DenoiseError> {
         if inputs.width == 0 || inputs.height == 0 {
             return Err(DenoiseError::Empty);
         }
-        self.denoise_features(&self.features(Cow::Borrowed(inputs), None), progress)
+        reserve_working_memory(self.working_bytes(inputs.width, 0..inputs.height, inputs.height))?;
+        let mut d = self.denoise_features(&self.features(Cow::Borrowed(inputs), None), progress)?;
+        d.carry(&inputs.remainder(0..inputs.height));
+        Ok(d)
     }
 
     /// Preprocesses `inputs` in this denoiser's threads; `whole` holds the whole frame's

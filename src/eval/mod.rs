@@ -23,6 +23,23 @@ pub struct Metrics {
     pub psnr: f64,
     /// 1 − SSIM of the tonemapped images.
     pub one_minus_ssim: f64,
+    /// relMSE with the image's own worst [`TRIMMED`] shares of pixels dropped (per-pixel
+    /// relMSE, RGB mean, ranked): outliers and bulk seen apart.
+    pub relmse_trimmed: [f64; 2],
+}
+
+/// The shares of worst pixels [`Metrics::relmse_trimmed`] drops: 0.1 % and 1 %.
+pub const TRIMMED: [f64; 2] = [0.001, 0.01];
+
+/// relMSE without the worst `share` of pixels by per-pixel relMSE ([`relmse_map`]).
+pub fn relmse_trimmed(x: Rgb, y: Rgb, share: f64) -> f64 {
+    let mut e = relmse_map(x, y);
+    let keep = e.len() - ((e.len() as f64 * share).ceil() as usize).min(e.len());
+    if keep == 0 {
+        return 0.0;
+    }
+    e.select_nth_unstable_by(keep - 1, f32::total_cmp);
+    e[..keep].iter().map(|&v| v as f64).sum::<f64>() / keep as f64
 }
 
 /// Mean of `(x − y)² / (y² + 0.01)`; non-finite samples of `x` count as 0.
@@ -120,6 +137,7 @@ pub fn metrics(x: Rgb, y: Rgb, w: usize, h: usize) -> Metrics {
         relmse: relmse(x, y),
         psnr: psnr(x, y),
         one_minus_ssim: ssim.map_or(f64::NAN, |s| 1.0 - s.iter().sum::<f64>() / 3.0),
+        relmse_trimmed: TRIMMED.map(|share| relmse_trimmed(x, y, share)),
     }
 }
 
@@ -169,6 +187,21 @@ mod tests {
         let expect = (100.0 + 1.0 / 1.01) / 2.0;
         assert!((relmse(view(&x), view(&y)) - expect).abs() < 1e-9);
         assert_eq!(relmse(view(&y), view(&y)), 0.0);
+    }
+
+    #[test]
+    fn trimming_drops_the_worst_pixels_only() {
+        // 1000 pixels: 999 with error 1 / 1.01 and one firefly of error 100 (at 0).
+        let mut xv = vec![2.0f32; 1000];
+        let mut yv = vec![1.0f32; 1000];
+        xv[7] = 1.0;
+        yv[7] = 0.0;
+        let (x, y) = (rgb(&xv), rgb(&yv));
+        let all = relmse(view(&x), view(&y));
+        let trimmed = relmse_trimmed(view(&x), view(&y), 0.001);
+        assert!((all - (999.0 / 1.01 + 100.0) / 1000.0).abs() < 1e-9);
+        assert!((trimmed - 1.0 / 1.01).abs() < 1e-6, "{trimmed}");
+        assert!((relmse_trimmed(view(&x), view(&y), 0.0) - all).abs() < 1e-6);
     }
 
     #[test]

@@ -363,8 +363,10 @@ pub struct Repairs {
 
 /// What [`Features`] repairs in each input, counted over rows `rows` of `k` (the inner rows
 /// of a band, so that a streamed frame counts each row once): NaN/Inf in every input, and
-/// values outside the physical range of albedo [0, 1], normal [−1, 1] and depth [0, ∞).
-pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, &'static str, Repairs); 6] {
+/// values outside the physical range of albedo [0, 1], normal [−1, 1], depth [0, ∞) and
+/// the variances [0, 1e15] (a negative variance is 0; one above the largest radiance
+/// kpcn keeps, squared or not, is no render's).
+pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, &'static str, Repairs); 12] {
     let span = rows.start * k.width..rows.end.min(k.height) * k.width;
     let count = |planes: &[&Vec<f32>], lo: f32, hi: f32| {
         let mut r = Repairs::default();
@@ -390,6 +392,12 @@ pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, 
         ("albedo", "[0, 1]", count(&all(&k.albedo), 0.0, 1.0)),
         ("normal", "[-1, 1]", count(&all(&k.normal), -1.0, 1.0)),
         ("depth", "[0, inf)", count(&[&k.depth], 0.0, inf)),
+        ("colorVariance", "[0, 1e15]", count(&[&k.color_variance], 0.0, MAX_MAGNITUDE)),
+        ("diffuseVariance", "[0, 1e15]", count(&[&k.diffuse_variance], 0.0, MAX_MAGNITUDE)),
+        ("specularVariance", "[0, 1e15]", count(&[&k.specular_variance], 0.0, MAX_MAGNITUDE)),
+        ("albedoVariance", "[0, 1e15]", count(&[&k.albedo_variance], 0.0, MAX_MAGNITUDE)),
+        ("normalVariance", "[0, 1e15]", count(&[&k.normal_variance], 0.0, MAX_MAGNITUDE)),
+        ("depthVariance", "[0, 1e15]", count(&[&k.depth_variance], 0.0, MAX_MAGNITUDE)),
     ]
 }
 

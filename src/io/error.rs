@@ -144,6 +144,24 @@ pub enum IoError {
     /// An unknown compression name.
     #[error("unknown EXR compression `{0}` — use one of none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab")]
     Compression(String),
+    /// Memory ran out while reading, denoising or writing: the file is fine, the budget or
+    /// the machine is not.
+    #[error("{}: out of memory {what} — lower --max-memory (the C ABI's max_memory_mb, the plugins' max_memory) or free memory; the file itself is fine", path.display())]
+    OutOfMemory {
+        /// The file, or `<memory>`.
+        path: PathBuf,
+        /// What needed the memory, with its size when known.
+        what: String,
+    },
+    /// An input that is not a regular file (a folder, a FIFO, a device): refused before it
+    /// is opened, since it could hang or be read only once.
+    #[error("{}: is {what}, not an image file — give the path of an image file", path.display())]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is.
+        what: &'static str,
+    },
     /// Anything else from the file system.
     #[error("{}: {source}", path.display())]
     Fs {
@@ -152,6 +170,18 @@ pub enum IoError {
         /// The OS error.
         source: std::io::Error,
     },
+}
+
+impl IoError {
+    /// The error of a failed OpenImageIO call on `path`: [`IoError::OutOfMemory`] when the
+    /// shim ran out of memory, else `or(reason)`.
+    pub(crate) fn from_oiio(path: &std::path::Path, reason: String, or: impl FnOnce(String) -> IoError) -> IoError {
+        if reason == super::oiio::OUT_OF_MEMORY {
+            IoError::OutOfMemory { path: path.into(), what: "in OpenImageIO".into() }
+        } else {
+            or(reason)
+        }
+    }
 }
 
 fn describe_missing(missing: &[String]) -> String {

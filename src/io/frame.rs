@@ -275,10 +275,12 @@ fn check_size(path: &Path, w: usize, h: usize, channels: usize) -> Result<(), Io
 impl FrameReader {
     /// Opens `path` and reads its headers (no pixels yet).
     pub fn open(path: &Path) -> Result<Self, IoError> {
-        let open_err = |reason: String| IoError::Open { path: path.into(), reason };
+        let open_err =
+            |reason: String| IoError::from_oiio(path, reason, |reason| IoError::Open { path: path.into(), reason });
         match std::fs::metadata(path) {
             Err(_) => return Err(open_err("no such file".into())),
             Ok(m) if m.is_file() && m.len() == 0 => return Err(IoError::Empty { path: path.into() }),
+            Ok(m) if !m.is_file() => return Err(IoError::NotAFile { path: path.into(), what: file_kind(&m) }),
             Ok(_) => {}
         }
         let input = Input::open(path).map_err(open_err)?;
@@ -412,8 +414,9 @@ impl FrameReader {
             }
             let mut unique: Vec<usize> = indices.iter().map(|&(index, _)| index).collect();
             unique.dedup();
-            let mut planes = read_planes(&mut self.input, s, info, y0, y1, &unique)
-                .map_err(|reason| IoError::Read { path: path.clone(), subimage: s, reason })?;
+            let mut planes = read_planes(&mut self.input, s, info, y0, y1, &unique).map_err(|reason| {
+                IoError::from_oiio(&path, reason, |reason| IoError::Read { path: path.clone(), subimage: s, reason })
+            })?;
             for (p, &(index, k)) in indices.iter().enumerate() {
                 // A channel asked for twice is copied; otherwise moved.
                 let again = indices.get(p + 1).is_some_and(|n| n.0 == index);
@@ -426,6 +429,23 @@ impl FrameReader {
             frame.planes.push(Plane { name: ch.name.clone(), format: ch.format, data: d.unwrap_or_default() });
         }
         Ok(frame)
+    }
+}
+
+/// What a path that is not a regular file is, for [`IoError::NotAFile`].
+fn file_kind(m: &std::fs::Metadata) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    let t = m.file_type();
+    if t.is_dir() {
+        "a folder"
+    } else if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_block_device() || t.is_char_device() {
+        "a device"
+    } else {
+        "not a regular file"
     }
 }
 

@@ -16,7 +16,7 @@ pub use oiio::{
     Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, decode_exr_on_the_calling_thread, oiio_version,
 };
 pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
-pub use write::{COMPRESSIONS, FrameWriter, Part, WriteOptions};
+pub use write::{COMPRESSIONS, FrameWriter, LOSSLESS_COMPRESSIONS, Part, WriteOptions};
 
 /// Rows of `channels` interleaved channels that one OpenImageIO read or write call moves:
 /// whole 16-row chunks (zip's) of at most 1024 samples per column (64 rows of 16

@@ -28,10 +28,13 @@ impl SampleFormat {
         }
     }
 
-    /// The format used when writing this channel to EXR (half stays half, all else float).
+    /// The format used when writing this channel to EXR: half, float and uint stay what
+    /// they are (a uint channel's plane holds its bits, see [`Input::read_rows`]), all else
+    /// becomes float.
     pub(crate) fn exr_code(self) -> i32 {
         match self {
             Self::Half => ffi::kpcn_format_KPCN_FORMAT_HALF as i32,
+            Self::Uint => ffi::kpcn_format_KPCN_FORMAT_UINT as i32,
             _ => ffi::kpcn_format_KPCN_FORMAT_FLOAT as i32,
         }
     }
@@ -92,8 +95,16 @@ fn last_error() -> String {
     unsafe { CStr::from_ptr(ffi::kpcn_oiio_last_error()) }.to_string_lossy().into_owned()
 }
 
+/// The error text of a shim call that ran out of memory (a C++ `std::bad_alloc`): the
+/// callers turn it into [`super::IoError::OutOfMemory`], never into "corrupt file".
+pub(crate) const OUT_OF_MEMORY: &str = "out of memory";
+
 fn check(status: i32) -> Result<(), String> {
-    if status == 0 { Ok(()) } else { Err(last_error()) }
+    match status {
+        0 => Ok(()),
+        ffi::KPCN_SHIM_OUT_OF_MEMORY => Err(OUT_OF_MEMORY.into()),
+        _ => Err(last_error()),
+    }
 }
 
 fn cstr(p: *const c_char) -> String {
@@ -257,6 +268,8 @@ impl Input {
     }
 
     /// Reads rows `[y0, y1)` (absolute) of channels `[c0, c1)` interleaved into `buf`.
+    /// A uint channel's samples are its bits (`f32::from_bits`), so that writing them back
+    /// keeps every id exactly; converted, 2654435761 would become 0.618.
     pub fn read_rows(
         &mut self,
         s: usize,

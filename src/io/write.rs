@@ -10,10 +10,16 @@ use std::path::{Path, PathBuf};
 /// EXR compressions OpenImageIO accepts.
 pub const COMPRESSIONS: &[&str] = &["none", "rle", "zips", "zip", "piz", "pxr24", "b44", "b44a", "dwaa", "dwab"];
 
+/// The lossless ones: an output keeps its input's compression only when it is one of
+/// these, so that the channels copied from a lossy (DWA, B44, PXR24) input are not
+/// re-encoded lossily a second time.
+pub const LOSSLESS_COMPRESSIONS: &[&str] = &["none", "rle", "zips", "zip", "piz"];
+
 /// How to write a frame.
 #[derive(Debug, Clone, Default)]
 pub struct WriteOptions {
-    /// EXR compression; `None` keeps the frame's own (`compression` attribute) or uses zip.
+    /// EXR compression; `None` keeps the frame's own (`compression` attribute) when it is
+    /// lossless ([`LOSSLESS_COMPRESSIONS`]) and uses zip otherwise.
     pub compression: Option<String>,
     /// Refuse to replace an existing file.
     pub no_clobber: bool,
@@ -107,7 +113,11 @@ impl FrameWriter {
         let compression = match &opts.compression {
             Some(c) if COMPRESSIONS.contains(&c.as_str()) => c.clone(),
             Some(c) => return Err(IoError::Compression(c.clone())),
-            None => header.attribute("compression").filter(|c| COMPRESSIONS.contains(c)).unwrap_or("zip").to_string(),
+            None => header
+                .attribute("compression")
+                .filter(|c| LOSSLESS_COMPRESSIONS.contains(c))
+                .unwrap_or("zip")
+                .to_string(),
         };
         if opts.no_clobber && path.exists() {
             return Err(IoError::Exists { path: path.into() });
@@ -126,8 +136,9 @@ impl FrameWriter {
             })
             .collect();
         let file = AtomicFile::new(path, opts.no_clobber);
-        let out =
-            Output::create(file.temp_path(), &specs).map_err(|reason| IoError::Write { path: path.into(), reason })?;
+        let out = Output::create(file.temp_path(), &specs).map_err(|reason| {
+            IoError::from_oiio(path, reason, |reason| IoError::Write { path: path.into(), reason })
+        })?;
         Ok(FrameWriter {
             out: Some(out),
             path: path.into(),
@@ -142,7 +153,7 @@ impl FrameWriter {
     }
 
     fn err(&self, reason: String) -> IoError {
-        IoError::Write { path: self.path.clone(), reason }
+        IoError::from_oiio(&self.path, reason, |reason| IoError::Write { path: self.path.clone(), reason })
     }
 
     /// Writes the next `rows` rows of the current part: one plane per channel, in the
@@ -164,8 +175,9 @@ impl FrameWriter {
                 self.scratch.extend(planes.iter().map(|p| p[i]));
             }
             let y = self.y0 + self.row as i32;
-            out.write_rows(y + r0 as i32, y + r1 as i32, &self.scratch)
-                .map_err(|reason| IoError::Write { path: self.path.clone(), reason })?;
+            if let Err(reason) = out.write_rows(y + r0 as i32, y + r1 as i32, &self.scratch) {
+                return Err(self.err(reason));
+            }
         }
         self.row += rows;
         Ok(())
@@ -174,7 +186,9 @@ impl FrameWriter {
     /// Finishes the current part and starts the next.
     pub fn next_part(&mut self) -> Result<(), IoError> {
         let out = self.out.as_mut().expect("open until commit");
-        out.next_part().map_err(|reason| IoError::Write { path: self.path.clone(), reason })?;
+        if let Err(reason) = out.next_part() {
+            return Err(self.err(reason));
+        }
         self.part += 1;
         self.row = 0;
         Ok(())
@@ -183,7 +197,8 @@ impl FrameWriter {
     /// Closes, syncs and moves the file into place.
     pub fn commit(mut self) -> Result<(), IoError> {
         let path = self.path.clone();
-        let write_err = |reason: String| IoError::Write { path: path.clone(), reason };
+        let write_err =
+            |reason: String| IoError::from_oiio(&path, reason, |reason| IoError::Write { path: path.clone(), reason });
         self.out.take().expect("open until commit").close().map_err(write_err)?;
         self.file.commit().map_err(|e| match e.kind() {
             std::io::ErrorKind::AlreadyExists => IoError::Exists { path: path.clone() },

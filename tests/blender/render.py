@@ -3,7 +3,7 @@
 # with the add-on at S/addons/kpcn_denoise.py. Renders the factory scene with Cycles at 4 spp
 # as a one-frame animation (the add-on denoises OUT/frame_0001.exr in place as it is
 # written), then runs "Denoise Last Render" on a plain render and copies its image to OUT/operator.exr.
-import shutil
+import os
 import sys
 
 import addon_utils
@@ -32,7 +32,11 @@ bpy.ops.render.render(animation=True)
 bpy.ops.render.render()
 assert bpy.ops.kpcn.denoise_render() == {"FINISHED"}
 image = bpy.data.images["kpcn Denoised"]
-shutil.copy(bpy.path.abspath(image.filepath), out + "/operator.exr")
+# The result is packed into the .blend, and the add-on's temporary folder is gone.
+assert image.packed_file is not None, "the denoised image is packed"
+assert not os.path.exists(os.path.dirname(bpy.path.abspath(image.filepath))), image.filepath
+with open(out + "/operator.exr", "wb") as f:
+    f.write(image.packed_file.data)
 # The compositor's Image node lists the new layer as a pass of the view layer.
 scene.use_nodes = True
 node = scene.node_tree.nodes.new("CompositorNodeImage")

@@ -35,7 +35,32 @@ pub struct KpcnInputs {
     pub depth_variance: Vec<f32>,
 }
 
+/// What a beauty holds beyond diffuse + specular (emission, volumes, anything a renderer
+/// adds to the beauty only), over the rows of a frame: carried to the output undenoised,
+/// so that the denoised beauty keeps it (see [`KpcnInputs::remainder`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Remainder {
+    /// `color − (diffuse + specular)` per pixel and channel, or `None` when it is zero
+    /// (within the rounding of the file's formats) everywhere.
+    pub planes: Option<[Vec<f32>; 3]>,
+    /// Pixels where it is not zero.
+    pub pixels: usize,
+    /// Its sum over pixels and channels (negative when the components exceed the beauty).
+    pub sum: f64,
+    /// The beauty's sum over the same rows, for reports.
+    pub beauty: f64,
+}
+
 impl KpcnInputs {
+    /// Planes of a frame's inputs with visibility: five RGB means, depth, visibility and
+    /// six variances.
+    pub const PLANES: usize = 5 * 3 + 2 + 6;
+
+    /// Bytes of the inputs of a `width`×`height` frame.
+    pub fn bytes(width: usize, height: usize) -> usize {
+        Self::PLANES * 4 * width * height
+    }
+
     /// Replaces every variance by the 3×3 spatial estimate of its mean
     /// ([`super::spatial_variance`]), exactly what a file without variances gives.
     pub fn estimate_variances_spatially(&mut self) {
@@ -46,5 +71,36 @@ impl KpcnInputs {
         self.albedo_variance = super::spatial_variance(&self.albedo, w, h);
         self.normal_variance = super::spatial_variance(&self.normal, w, h);
         self.depth_variance = super::spatial_variance(std::slice::from_ref(&self.depth), w, h);
+    }
+
+    /// The [`Remainder`] of rows `rows`: where the beauty differs from diffuse + specular
+    /// by more than the rounding of half-float channels (a relative 1e-3), the difference.
+    /// Zero for files whose beauty is the sum of its components or whose specular is the
+    /// beauty minus the diffuse, so their output is exactly what it was.
+    pub fn remainder(&self, rows: std::ops::Range<usize>) -> Remainder {
+        let span = rows.start * self.width..rows.end * self.width;
+        let mut out = Remainder::default();
+        let mut planes = [vec![0f32; span.len()], vec![0f32; span.len()], vec![0f32; span.len()]];
+        let mut marked = vec![false; span.len()];
+        for (c, plane) in planes.iter_mut().enumerate() {
+            let (col, d, s) =
+                (&self.color[c][span.clone()], &self.diffuse[c][span.clone()], &self.specular[c][span.clone()]);
+            for (i, r) in plane.iter_mut().enumerate() {
+                if col[i].is_finite() {
+                    out.beauty += col[i] as f64;
+                }
+                let diff = col[i] - (d[i] + s[i]);
+                if diff.is_finite() && diff.abs() > 1e-3 * (col[i].abs() + d[i].abs() + s[i].abs()) + 1e-6 {
+                    *r = diff;
+                    out.sum += diff as f64;
+                    marked[i] = true;
+                }
+            }
+        }
+        out.pixels = marked.iter().filter(|&&m| m).count();
+        if out.pixels > 0 {
+            out.planes = Some(planes);
+        }
+        out
     }
 }

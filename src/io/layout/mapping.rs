@@ -148,7 +148,8 @@ impl Mapping {
     }
 
     fn native(n: &Names) -> Vec<Entry> {
-        let mut color = n.source(&[""], 3);
+        // A beauty written as `rgba.*` (some renderers' default) is the colour too.
+        let mut color = n.source(&["", "rgba"], 3);
         let diffuse = n.source(&["diffuse"], 3);
         let mut specular = n.source(&["specular"], 3);
         if color.is_missing() && !diffuse.is_missing() && !specular.is_missing() {

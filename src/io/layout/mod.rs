@@ -11,7 +11,7 @@ mod mapping;
 mod source;
 
 pub use filters::{box3, spatial_variance};
-pub use inputs::KpcnInputs;
+pub use inputs::{KpcnInputs, Remainder};
 pub use mapping::Mapping;
 pub use source::{Entry, MeanStatus, Source, VarianceSource, VarianceStatus};
 

@@ -5,7 +5,9 @@
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/oiioversion.h>
 
+#include <cstring>
 #include <exception>
+#include <new>
 #include <memory>
 #include <string>
 #include <vector>
@@ -31,10 +33,14 @@ int ok() {
     return 0;
 }
 
-// Runs `f`, turning any exception into a failed status.
+// Runs `f`, turning any exception into a failed status; running out of memory gets its
+// own status, so that it is never reported as a corrupt file.
 template <typename F> int guarded(F&& f) {
     try {
         return f();
+    } catch (const std::bad_alloc&) {
+        fail("out of memory");
+        return KPCN_SHIM_OUT_OF_MEMORY;
     } catch (const std::exception& e) {
         return fail(std::string("internal error: ") + e.what());
     } catch (...) {
@@ -103,10 +109,11 @@ int kpcn_input_open(const char* path, kpcn_input** out) {
             h->attr_texts.push_back(std::move(texts));
             h->specs.push_back(std::move(spec));
         }
-        if (in->has_error())
-            return fail(in->geterror());
+        // The seek past the last subimage that ends the loop is no error, but some readers
+        // (TIFF) record one: dropped once at least one subimage was read.
         if (h->specs.empty())
-            return fail("the file holds no image");
+            return fail(in->has_error() ? in->geterror() : std::string("the file holds no image"));
+        (void)in->geterror();
         h->in = std::move(in);
         *out = h.release();
         return ok();
@@ -183,15 +190,47 @@ int kpcn_input_read_rows(kpcn_input* in, int s, int ybegin, int yend, int chbegi
         const ImageSpec& sp = in->specs[s];
         if (sp.deep)
             return fail("deep images are not supported");
+        // UINT channels (object ids) keep their bits: read natively and bit-cast into the
+        // float buffer, where converting would normalise them to [0, 1].
+        bool uint = false;
+        for (int c = chbegin; c < chend; ++c)
+            uint |= sp.channelformat(c) == TypeDesc::UINT;
+        std::vector<unsigned char> native;
+        TypeDesc format = TypeDesc::FLOAT;
+        void* target = data;
+        size_t pixel_bytes = 0;
+        if (uint) {
+            for (int c = chbegin; c < chend; ++c)
+                pixel_bytes += sp.channelformat(c).size();
+            native.resize(size_t(yend - ybegin) * size_t(sp.width) * pixel_bytes);
+            format = TypeDesc::UNKNOWN;
+            target = native.data();
+        }
         bool good;
         if (sp.tile_width > 0)
             good = in->in->read_tiles(s, 0, sp.x, sp.x + sp.width, ybegin, yend, sp.z, sp.z + 1,
-                                      chbegin, chend, TypeDesc::FLOAT, data);
+                                      chbegin, chend, format, target);
         else
-            good = in->in->read_scanlines(s, 0, ybegin, yend, sp.z, chbegin, chend,
-                                          TypeDesc::FLOAT, data);
+            good = in->in->read_scanlines(s, 0, ybegin, yend, sp.z, chbegin, chend, format, target);
         if (!good || in->in->has_error())
             return fail(in->in->geterror());
+        if (uint) {
+            const unsigned char* src = native.data();
+            size_t n = size_t(yend - ybegin) * size_t(sp.width);
+            float* dst = data;
+            for (size_t i = 0; i < n; ++i)
+                for (int c = chbegin; c < chend; ++c) {
+                    TypeDesc t = sp.channelformat(c);
+                    if (t == TypeDesc::UINT)
+                        std::memcpy(dst, src, 4);
+                    else if (t == TypeDesc::FLOAT)
+                        std::memcpy(dst, src, 4);
+                    else
+                        convert_pixel_values(t, src, TypeDesc::FLOAT, dst, 1);
+                    src += t.size();
+                    dst += 1;
+                }
+        }
         return ok();
     });
 }
@@ -207,14 +246,15 @@ ImageSpec make_spec(const kpcn_output_spec* os) {
     spec.full_height = os->full_height;
     spec.channelnames.clear();
     spec.channelformats.clear();
-    bool any_half = false;
+    bool mixed = false;
     for (int c = 0; c < os->nchannels; ++c) {
         spec.channelnames.emplace_back(os->channel_names[c]);
-        bool half = os->channel_formats[c] == KPCN_FORMAT_HALF;
-        any_half |= half;
-        spec.channelformats.push_back(half ? TypeDesc::HALF : TypeDesc::FLOAT);
+        int f = os->channel_formats[c];
+        TypeDesc t = f == KPCN_FORMAT_HALF ? TypeDesc::HALF : f == KPCN_FORMAT_UINT ? TypeDesc::UINT : TypeDesc::FLOAT;
+        mixed |= t != TypeDesc::FLOAT;
+        spec.channelformats.push_back(t);
     }
-    if (!any_half)
+    if (!mixed)
         spec.channelformats.clear();  // uniform float: let spec.format speak
     spec.alpha_channel = -1;
     spec.z_channel = -1;
@@ -270,7 +310,35 @@ int kpcn_output_next_part(kpcn_output* out) {
 
 int kpcn_output_write_rows(kpcn_output* out, int ybegin, int yend, const float* data) {
     return guarded([&]() {
-        if (!out->out->write_scanlines(ybegin, yend, 0, TypeDesc::FLOAT, data))
+        const ImageSpec& sp = out->specs[out->part];
+        bool uint = false;
+        for (const TypeDesc& t : sp.channelformats)
+            uint |= t == TypeDesc::UINT;
+        if (!uint) {
+            if (!out->out->write_scanlines(ybegin, yend, 0, TypeDesc::FLOAT, data))
+                return fail(out->out->geterror());
+            return ok();
+        }
+        // UINT channels hold their bits in the float buffer (see kpcn_input_read_rows):
+        // written natively, each channel in its own format.
+        size_t pixel_bytes = 0;
+        for (const TypeDesc& t : sp.channelformats)
+            pixel_bytes += t.size();
+        size_t n = size_t(yend - ybegin) * size_t(sp.width);
+        std::vector<unsigned char> native(n * pixel_bytes);
+        unsigned char* dst = native.data();
+        const float* src = data;
+        for (size_t i = 0; i < n; ++i)
+            for (const TypeDesc& t : sp.channelformats) {
+                if (t == TypeDesc::HALF) {
+                    convert_pixel_values(TypeDesc::FLOAT, src, TypeDesc::HALF, dst, 1);
+                } else {
+                    std::memcpy(dst, src, 4);
+                }
+                dst += t.size();
+                src += 1;
+            }
+        if (!out->out->write_scanlines(ybegin, yend, 0, TypeDesc::UNKNOWN, native.data()))
             return fail(out->out->geterror());
         return ok();
     });

@@ -1,6 +1,7 @@
 /* kpcn's thin C shim over OpenImageIO 2.4 (Debian 12).
  *
- * Every function returns 0 on success and -1 on failure; on failure the text of
+ * Every function returns 0 on success and -1 on failure (KPCN_SHIM_OUT_OF_MEMORY when an
+ * allocation failed); on failure the text of
  * the error (OpenImageIO's geterror() or the caught C++ exception) is available
  * from kpcn_oiio_last_error() on the same thread until the next shim call.
  * No C++ exception ever leaves this file.
@@ -14,6 +15,9 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* The status of a call that ran out of memory (std::bad_alloc). */
+#define KPCN_SHIM_OUT_OF_MEMORY -2
 
 /* Per-channel sample formats we distinguish. */
 enum kpcn_format {
@@ -66,7 +70,8 @@ int kpcn_input_channel_format(const kpcn_input* in, int subimage, int channel);
 int kpcn_input_attribute_count(const kpcn_input* in, int subimage);
 int kpcn_input_attribute(const kpcn_input* in, int subimage, int index, kpcn_attribute* attr);
 /* Reads rows [ybegin, yend) (absolute data-window coordinates) of channels
- * [chbegin, chend) as interleaved f32 into `data`, which holds
+ * [chbegin, chend) as interleaved f32 into `data` (UINT channels as their bits: a
+ * bit-cast, not a conversion), which holds
  * (yend-ybegin) * width * (chend-chbegin) floats. For tiled images, ybegin and
  * yend must lie on tile boundaries or the data window's end. */
 int kpcn_input_read_rows(kpcn_input* in, int subimage, int ybegin, int yend,
@@ -81,7 +86,7 @@ typedef struct kpcn_output_spec {
     int full_x, full_y, full_width, full_height;
     int nchannels;
     const char* const* channel_names;
-    const int* channel_formats;   /* kpcn_format, HALF or FLOAT */
+    const int* channel_formats;   /* kpcn_format: HALF, FLOAT or UINT (others are written as FLOAT) */
     const char* compression;      /* e.g. "zip", "piz", "none"; NULL for the default */
     const kpcn_attribute* attributes;
     int nattributes;
@@ -91,7 +96,8 @@ typedef struct kpcn_output_spec {
 int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, kpcn_output** out);
 /* Finishes the current part and starts the next one. */
 int kpcn_output_next_part(kpcn_output* out);
-/* Rows [ybegin, yend) of the current part, all its channels interleaved as f32, in order. */
+/* Rows [ybegin, yend) of the current part, all its channels interleaved as f32, in order;
+ * UINT channels as their bits, as kpcn_input_read_rows gives them. */
 int kpcn_output_write_rows(kpcn_output* out, int ybegin, int yend, const float* data);
 /* Closes the file (flushing it) and frees the handle; safe on NULL. */
 int kpcn_output_close(kpcn_output* out);
