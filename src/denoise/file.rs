@@ -116,12 +116,11 @@ fn check_layer(reader: &FrameReader, mapping: &Mapping, opts: &FileOptions) -> R
     let read = mapping.channels();
     let written_by_kpcn = reader.header().attribute("kpcn:model").is_some();
     for n in new_layer_names(name, opts.aovs) {
-        if let Some(existing) = reader.channel_names().find(|c| *c == n) {
-            if read.iter().any(|r| r == existing) || !written_by_kpcn {
-                return refuse(format!(
-                    "the layer `{name}` would overwrite the render's channel `{existing}` — choose another layer name (`--layer`, the C ABI's `layer`)"
-                ));
-            }
+        let pass = reader.channel_names().find(|c| *c == n && (read.iter().any(|r| r == c) || !written_by_kpcn));
+        if let Some(existing) = pass {
+            return refuse(format!(
+                "the layer `{name}` would overwrite the render's channel `{existing}` — choose another layer name (`--layer`, the C ABI's `layer`)"
+            ));
         }
     }
     Ok(())

@@ -18,20 +18,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-static int failures = 0;
-
-#define CHECK(cond, ...)                                                          \
-    do {                                                                          \
-        if (!(cond)) {                                                            \
-            fprintf(stderr, "FAIL %s:%d: %s — ", __FILE__, __LINE__, #cond);      \
-            fprintf(stderr, __VA_ARGS__);                                         \
-            fprintf(stderr, " (last error: %s)\n", kpcn_last_error());           \
-            failures++;                                                           \
-        }                                                                         \
-    } while (0)
-
-#define EXPECT(status, expected) \
-    CHECK((status) == (expected), "got %d (%s)", (int)(status), kpcn_status_string(status))
+#include "check.h"
 
 static void copy_file(const char *from, const char *to) {
     FILE *in = fopen(from, "rb"), *out = fopen(to, "wb");
