@@ -240,21 +240,28 @@ fn the_library_core_depends_on_no_tool_crates() {
 }
 
 /// `tests/c/integrity_test.c`: the file call never erases or overwrites a render (output =
-/// input or a link to it, colliding or empty layer names, an old host's smaller options
-/// struct), writes in place only when asked, and a frame too large for the address space
-/// fails with `KPCN_ERROR_OUT_OF_MEMORY` instead of aborting the host.
+/// input or a link to it, colliding or empty layer names, a struct of another ABI), writes
+/// in place only when asked, keeps a uint id channel bit for bit, and a frame too large
+/// for the address space fails with `KPCN_ERROR_OUT_OF_MEMORY` instead of aborting the
+/// host. Linked with pkg-config's flags alone: they carry the rpath it runs with.
 #[test]
 fn c_hosts_cannot_erase_a_render_and_out_of_memory_is_a_status() {
+    use kpcn::io::{SampleFormat, WriteOptions};
     let dir = tempfile::tempdir().unwrap();
     let exe = dir.path().join("integrity");
-    let lib = prefix().join("lib");
     run(Command::new("gcc")
         .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-g"])
         .arg(root().join("tests/c/integrity_test.c"))
         .arg("-o")
         .arg(&exe)
-        .args(pkg_config(&["--cflags", "--libs"]))
-        .arg(format!("-Wl,-rpath,{}", lib.display())));
-    let text = run(Command::new(&exe).arg(dir.path()).arg(EXAMPLE));
+        .args(pkg_config(&["--cflags", "--libs"])));
+    let mut fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
+    let ids: Vec<u32> = (0..fb.width() as u32 * fb.height() as u32).map(|i| i.wrapping_mul(2654435761) | 1).collect();
+    fb.insert("objectId.id", SampleFormat::Uint, ids.iter().map(|&i| f32::from_bits(i)).collect()).unwrap();
+    let with_ids = dir.path().join("ids.exr");
+    fb.write(&with_ids, &WriteOptions::default()).unwrap();
+    let text = run(Command::new(&exe).arg(dir.path()).arg(EXAMPLE).arg(&with_ids));
     assert!(text.contains("all checks passed"), "{text}");
+    let out = FrameBuffers::read(&dir.path().join("ids-denoised.exr")).unwrap();
+    assert!(out.channel("objectId.id").unwrap().iter().map(|v| v.to_bits()).eq(ids.iter().copied()), "ids kept");
 }

@@ -285,3 +285,29 @@ fn hostile_variances_are_repaired_and_reported_and_tiffs_open() {
     let r = FrameReader::open(&tiff).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(r.channel_names().count(), 3);
 }
+
+/// Host buffers (the C ABI's and the Python module's path): a colour that holds emission
+/// beyond diffuse + specular keeps it in the output, and the parts still add up.
+#[test]
+fn in_memory_frames_keep_what_the_beauty_holds_beyond_its_components() {
+    use kpcn::denoise::{Denoiser, Options};
+    let fb = FrameBuffers::read(Path::new(EXAMPLE)).unwrap();
+    let mapping = kpcn::io::layout::Mapping::for_frame(&fb, None);
+    let plain = mapping.extract(&fb).unwrap();
+    let mut emitting = plain.clone();
+    let w = plain.width;
+    for c in 0..3 {
+        for i in (20 * w..40 * w).filter(|i| (30..60).contains(&(i % w))) {
+            emitting.color[c][i] += 5.0;
+        }
+    }
+    let d = Denoiser::new(kpcn::model::Model::embedded_default().unwrap(), Options::default()).unwrap();
+    let (a, b) = (d.denoise(&plain, &|_| true).unwrap(), d.denoise(&emitting, &|_| true).unwrap());
+    let i = 30 * w + 45;
+    assert!((b.color[0][i] - a.color[0][i] - 5.0).abs() < 0.1, "{} vs {}", b.color[0][i], a.color[0][i]);
+    for c in 0..3 {
+        for (k, x) in b.color[c].iter().enumerate() {
+            assert!((x - (b.diffuse[c][k] + b.specular[c][k])).abs() <= 1e-5 * x.abs().max(1.0));
+        }
+    }
+}

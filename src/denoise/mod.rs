@@ -97,14 +97,15 @@ pub struct Denoised {
 }
 
 impl Denoised {
-    /// Adds what the beauty held beyond diffuse + specular, undenoised, to the colour and
-    /// the specular, so that the colour keeps it and still equals diffuse + specular.
+    /// Adds what the beauty held beyond diffuse + specular, undenoised, to the specular
+    /// (as Cycles' specular, the beauty minus the diffuse, holds emission) and so to the
+    /// colour, which stays exactly diffuse + specular.
     pub fn carry(&mut self, remainder: &Remainder) {
         let Some(planes) = &remainder.planes else { return };
         for (c, r) in planes.iter().enumerate() {
-            for ((col, s), r) in self.color[c].iter_mut().zip(&mut self.specular[c]).zip(r) {
-                *col += r;
+            for (((col, d), s), r) in self.color[c].iter_mut().zip(&self.diffuse[c]).zip(&mut self.specular[c]).zip(r) {
                 *s += r;
+                *col = d + *s;
             }
         }
     }

@@ -1,13 +1,14 @@
 /* The C API's guards of a host's data (tests/capi.rs builds and runs this):
  *
- *   integrity_test DIR INPUT.exr
+ *   integrity_test DIR INPUT.exr IDS.exr
  *
  * DIR is a scratch folder. Checks that kpcn_denoise_file never erases or overwrites a
  * render (output = input, a link to it, layer names that collide with its passes), that
  * in-place writing works only when asked for, that a struct of another ABI is refused,
  * and that a frame too large for the address space fails with
  * KPCN_ERROR_OUT_OF_MEMORY instead of aborting, after which the denoiser still works.
- * Exits 0 when every check passes. */
+ * IDS.exr (a frame with a uint object-id channel) is denoised to DIR/ids-denoised.exr for
+ * the Rust test to compare bit for bit. Exits 0 when every check passes. */
 #define _POSIX_C_SOURCE 200809L
 #include <kpcn.h>
 
@@ -51,7 +52,7 @@ static size_t mapped_bytes(void) {
     return (size_t)pages * (size_t)sysconf(_SC_PAGESIZE);
 }
 
-static void files(const char *dir, const char *example) {
+static void files(const char *dir, const char *example, const char *ids) {
     char a[4096], link[4096], out[4096];
     KpcnDenoiser *d = NULL;
     KpcnFileOptions fo;
@@ -93,6 +94,10 @@ static void files(const char *dir, const char *example) {
     fo.layer = "";
     EXPECT(kpcn_denoise_file(d, a, out, &fo), KPCN_ERROR_INVALID_ARGUMENT);
     CHECK(access(out, F_OK) != 0, "nothing written");
+
+    /* A frame with object ids: denoised through the library, checked by the caller. */
+    snprintf(out, sizeof out, "%s/ids-denoised.exr", dir);
+    EXPECT(kpcn_denoise_file(d, ids, out, NULL), KPCN_OK);
 
     /* Asked for, in place works: the render gains the denoised layer. */
     EXPECT(kpcn_file_options_init(&fo), KPCN_OK);
@@ -151,11 +156,11 @@ static void out_of_memory(void) {
 }
 
 int main(int argc, char **argv) {
-    if (argc != 3) {
-        fprintf(stderr, "usage: integrity_test DIR INPUT.exr\n");
+    if (argc != 4) {
+        fprintf(stderr, "usage: integrity_test DIR INPUT.exr IDS.exr\n");
         return 2;
     }
-    files(argv[1], argv[2]);
+    files(argv[1], argv[2], argv[3]);
     out_of_memory();
     if (failures) {
         fprintf(stderr, "%d check(s) failed\n", failures);
