@@ -439,7 +439,7 @@ fn denoise_view_layer(
             bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
         }
     }
-    let (pixels, sum, beauty) = report.remainder;
+    let crate::io::layout::Remainder { pixels, sum, beauty, .. } = report.remainder;
     if pixels > 0 && !args.quiet {
         let share = 100.0 * sum / beauty.abs().max(f64::MIN_POSITIVE);
         if share < -1.0 {

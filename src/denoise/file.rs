@@ -132,9 +132,9 @@ fn check_layer(reader: &FrameReader, mapping: &Mapping, opts: &FileOptions) -> R
 pub struct FileReport {
     /// Inputs with repaired samples.
     pub repairs: Vec<(&'static str, &'static str, features::Repairs)>,
-    /// What the beauty held beyond diffuse + specular, carried to the output undenoised:
-    /// its pixels and sum, and the beauty's sum ([`crate::io::layout::Remainder`]).
-    pub remainder: (usize, f64, f64),
+    /// What the beauty held beyond diffuse + specular, carried to the output undenoised,
+    /// counted over the whole frame (no planes).
+    pub remainder: crate::io::layout::Remainder,
 }
 
 /// One input file, opened and mapped, ready to denoise.
@@ -329,9 +329,7 @@ impl FileJob {
                     }
                 }
                 let remainder = inputs.remainder(a - c0..b - c0);
-                report.remainder.0 += remainder.pixels;
-                report.remainder.1 += remainder.sum;
-                report.remainder.2 += remainder.beauty;
+                report.remainder.absorb_counts(&remainder);
                 let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
                 let mut d = denoiser

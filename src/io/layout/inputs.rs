@@ -51,6 +51,16 @@ pub struct Remainder {
     pub beauty: f64,
 }
 
+impl Remainder {
+    /// Adds `other`'s counts and sums to this one's (a frame's report over its bands); the
+    /// planes are not kept.
+    pub fn absorb_counts(&mut self, other: &Remainder) {
+        self.pixels += other.pixels;
+        self.sum += other.sum;
+        self.beauty += other.beauty;
+    }
+}
+
 impl KpcnInputs {
     /// Planes of a frame's inputs with visibility: five RGB means, depth, visibility and
     /// six variances.
@@ -80,26 +90,23 @@ impl KpcnInputs {
     pub fn remainder(&self, rows: std::ops::Range<usize>) -> Remainder {
         let span = rows.start * self.width..rows.end * self.width;
         let mut out = Remainder::default();
-        let mut planes = [vec![0f32; span.len()], vec![0f32; span.len()], vec![0f32; span.len()]];
-        let mut marked = vec![false; span.len()];
-        for (c, plane) in planes.iter_mut().enumerate() {
-            let (col, d, s) =
-                (&self.color[c][span.clone()], &self.diffuse[c][span.clone()], &self.specular[c][span.clone()]);
-            for (i, r) in plane.iter_mut().enumerate() {
-                if col[i].is_finite() {
-                    out.beauty += col[i] as f64;
+        for (k, i) in span.clone().enumerate() {
+            let mut kept = false;
+            for c in 0..3 {
+                let (col, d, s) = (self.color[c][i], self.diffuse[c][i], self.specular[c][i]);
+                if col.is_finite() {
+                    out.beauty += col as f64;
                 }
-                let diff = col[i] - (d[i] + s[i]);
-                if diff.is_finite() && diff.abs() > 1e-3 * (col[i].abs() + d[i].abs() + s[i].abs()) + 1e-6 {
-                    *r = diff;
+                let diff = col - (d + s);
+                if diff.is_finite() && diff.abs() > 1e-3 * (col.abs() + d.abs() + s.abs()) + 1e-6 {
+                    // The planes exist only for a band that has a remainder somewhere.
+                    let planes = out.planes.get_or_insert_with(|| std::array::from_fn(|_| vec![0f32; span.len()]));
+                    planes[c][k] = diff;
                     out.sum += diff as f64;
-                    marked[i] = true;
+                    kept = true;
                 }
             }
-        }
-        out.pixels = marked.iter().filter(|&&m| m).count();
-        if out.pixels > 0 {
-            out.planes = Some(planes);
+            out.pixels += usize::from(kept);
         }
         out
     }
