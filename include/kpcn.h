@@ -103,7 +103,7 @@ typedef enum KpcnLayout {
    */
   KPCN_LAYOUT_AUTO = 0,
   /**
-   * kpcn's own (SPEC §3).
+   * kpcn's own (ARCHITECTURE.md §Layout).
    */
   KPCN_LAYOUT_NATIVE = 1,
   /**
@@ -133,13 +133,11 @@ typedef struct KpcnOptions {
    */
   uint32_t max_memory_mb;
   /**
-   * A model by name, or NULL for `"default"`: `"default"` (the quality ladder's
-   * `"balanced"`), `"compact"` (the 3-level network that was the default), `"spatial"`
-   * (trained on the spatial variance estimates of frames without variances),
-   * `"small-flat"`, the ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
-   * frame as `kpcn denoise` does: `default` when the frame has a colour variance (a
-   * `colorVariance` image; in a file, per-pixel variances or half buffers), `spatial`
-   * when it has none.
+   * A model by name, or NULL for `"default"`: `"auto"`, which picks per frame as
+   * `kpcn denoise` does (the default model when the frame has a colour variance, a
+   * `colorVariance` image or in a file per-pixel variances or half buffers; `"spatial"`
+   * when it has none), or a shipped model's name (`kpcn denoise --help` lists them;
+   * `"default"` is `"balanced"`).
    */
   const char *model_name;
   /**

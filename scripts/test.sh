@@ -6,5 +6,5 @@ cd "$(dirname "$0")/.."
 scripts/setup-debian.sh
 cargo fmt --check
 cargo clippy --locked --all-targets -- -D warnings
-RUSTDOCFLAGS="-D warnings" cargo doc --locked --no-deps --quiet
+RUSTDOCFLAGS="-D warnings" cargo doc --locked --no-deps --quiet --document-private-items
 cargo test --locked

@@ -13,7 +13,9 @@
 #                                         # files without variances get (Blender's): runs
 #                                         # go to WORK/RUNG-spatial
 #
-# Then: kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors  (f16 weights)
+# Then, to ship (f16 weights; the firefly clamp chosen on our Cycles corpus, models/README.md):
+#   kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors
+#   kpcn model clamp models/RUNG.safetensors --clamp fine -o models/RUNG.safetensors
 # (models/balanced-spatial.safetensors: KPCN_VARIANCES=spatial scripts/train-ladder.sh balanced)
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail

@@ -4,11 +4,11 @@
 # fireflies injected into the inputs.
 #
 #   scripts/train-v2.sh [RUNG]            # fast, balanced (default) or high
-#   scripts/train-v2.sh default           # `compact`, the 3-level network: one segment (below)
+#   scripts/train-v2.sh compact           # `compact`, the 3-level network: one segment (below)
 #   scripts/train-v2.sh RUNG --one-segment # that one segment from the rung (WORK/RUNG-one)
 #   KPCN_WORK=DIR                         # work folder (default ./train-v2)
 #   KPCN_LADDER=DIR                       # the ladder's work folder (default ./train-ladder)
-#   KPCN_BASE=DIR                         # scripts/train-default.sh's (default ./train-default)
+#   KPCN_BASE=DIR                         # scripts/train-compact.sh's (default ./train-compact)
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M      # segment length (defaults 8000 and 2000)
 #   KPCN_DEV=DIR                          # also score a folder of real renders at every
 #                                         # validation (monitoring only: never trained on)
@@ -33,14 +33,16 @@
 #   6. segment 4, the same from segment 1's weights on the spatial variance estimates that
 #      files without variances (Blender's) get, with --permute-channels
 #      (WORK/RUNG-spatial): the model `--model auto` runs on such files.
-# For `default`, step 1 is scripts/train-default.sh and one segment follows, from its
+# For `compact`, step 1 is scripts/train-compact.sh and one segment follows, from its
 # weights (with --one-segment, the same follows the rung's step 1): segment 1's and 3's recipes at once (--loss relative --augment --exposure auto,
-# rare bright fireflies), 6,000 + 1,500 steps, lr 2e-4 / 5e-5 (WORK/default-auto).
+# rare bright fireflies), 6,000 + 1,500 steps, lr 2e-4 / 5e-5 (WORK/compact-auto).
 # Each segment resumes bit-exactly from its checkpoint.safetensors.
 #
 # Shipped (models/README.md): `balanced`, also the default, is segment 3
 #   kpcn model half WORK/balanced-auto/model.safetensors -o models/balanced.safetensors
-# and `compact` is WORK/default-auto/model.safetensors as it is.
+# and `compact` is WORK/compact-auto/model.safetensors as it is (f32); then each gets the
+# firefly clamp chosen on our Cycles corpus (models/README.md):
+#   kpcn model clamp models/MODEL.safetensors --clamp fine -o models/MODEL.safetensors
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -49,9 +51,9 @@ work=${KPCN_WORK:-train-v2}
 ladder=${KPCN_LADDER:-train-ladder}
 mkdir -p "$work"
 
-if [ "$rung" = default ]; then
-    base=${KPCN_BASE:-train-default}
-    scripts/train-default.sh "$base"
+if [ "$rung" = compact ]; then
+    base=${KPCN_BASE:-train-compact}
+    scripts/train-compact.sh "$base"
     init=$base/run/model.safetensors
 else
     KPCN_WORK=$ladder scripts/train-ladder.sh "$rung"
@@ -89,11 +91,11 @@ segment() {
         --schedule cosine --loss relative --augment --checkpoint-every 200 --validate-every 1000 -q "$@"
     echo "$run/model.safetensors (log: $run/log.csv)"
 }
-# One segment with segment 1's and 3's recipes at once: `default` (compact), and a rung
+# One segment with segment 1's and 3's recipes at once: `compact`, and a rung
 # given --one-segment (WORK/RUNG-one).
-if [ "$rung" = default ] || [ "${2:-}" = --one-segment ]; then
+if [ "$rung" = compact ] || [ "${2:-}" = --one-segment ]; then
     name=$rung-one
-    [ "$rung" = default ] && name=default-auto
+    [ "$rung" = compact ] && name=compact-auto
     segment "$name" "$init" 6000 1500 2e-4 5e-5 \
         --exposure auto --fireflies --firefly-most 1 --firefly-min-gain 300
     exit 0

@@ -1,5 +1,7 @@
 //! `kpcn`: parses arguments, runs the command, reports errors. Everything else is in the library.
 
+mod cli;
+
 use clap::Parser;
 use std::process::ExitCode;
 
@@ -10,19 +12,19 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = kpcn::cli::Cli::parse();
-    let result = kpcn::cli::run(cli);
-    if std::env::var_os(kpcn::cli::PEAK_RSS_ENV).is_some() {
-        eprintln!("peak-rss-kb {}", kpcn::cli::peak_rss_kb().unwrap_or(0));
+    let cli = cli::Cli::parse();
+    let result = cli::run(cli);
+    if std::env::var_os(cli::PEAK_RSS_ENV).is_some() {
+        eprintln!("peak-rss-kb {}", cli::peak_rss_kb().unwrap_or(0));
     }
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            if e.downcast_ref::<kpcn::cli::Reported>().is_none() {
-                eprintln!("kpcn: error: {}", kpcn::cli::describe_error(&e));
+            if e.downcast_ref::<cli::Reported>().is_none() {
+                eprintln!("kpcn: error: {}", cli::describe_error(&e));
             }
             // 2 for usage errors, as the argument parser exits; 1 for everything else.
-            if e.downcast_ref::<kpcn::cli::Usage>().is_some() { ExitCode::from(2) } else { ExitCode::FAILURE }
+            if e.downcast_ref::<cli::Usage>().is_some() { ExitCode::from(2) } else { ExitCode::FAILURE }
         }
     }
 }

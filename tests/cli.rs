@@ -235,7 +235,7 @@ fn auto_picks_the_spatial_model_for_files_without_variances() {
         ["R", "G", "B"]
             .map(|c| fb.channel(&format!("denoised.{c}")).unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
     };
-    for (input, picked) in [(&with, "default"), (&without, "spatial")] {
+    for (input, picked) in [(&with, "balanced"), (&without, "spatial")] {
         let auto = dir.path().join("auto.exr");
         let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", auto.to_str().unwrap(), "-v"]);
         assert!(o.status.success(), "{}", text(&o.stderr));

@@ -129,18 +129,17 @@ proptest! {
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
         w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
-        spread in any::<bool>(), ladder in any::<bool>()
+        clamp in 0usize..4, ladder in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
         // the receptive radius as halo, cut at the frame's border radius) reproduce the
-        // frame exactly; hostile inputs stay finite. Both firefly clamps; 2 levels, and the
+        // frame exactly; hostile inputs stay finite. Every firefly clamp; 2 levels, and the
         // ladder's 5, whose regions are cut at the frame's edges.
         let k = frame(w, h, seed, hostile);
         let model = || {
             let mut m = if ladder { tiny_multiscale_levels(4, 5) } else { tiny_ms() };
-            if spread {
-                m.arch.clamp = kpcn::model::Clamp::Spread;
-            }
+            use kpcn::model::Clamp;
+            m.arch.clamp = [Clamp::Hard, Clamp::Spread, Clamp::Coarse, Clamp::Fine][clamp];
             m
         };
         let whole = run(model(), &k, Some(1024), 1);
@@ -180,7 +179,7 @@ fn linear_specular_kernels_keep_specular_inside_its_range_and_bright_frames_brig
     }
     let (mut log, mut linear) = (tiny_multiscale_levels(4, 5), tiny_multiscale_levels(4, 5));
     for (m, domain) in [(&mut log, kpcn::model::Specular::Log), (&mut linear, kpcn::model::Specular::Linear)] {
-        // As the ladder: the firefly clamp spreads what it removes.
+        // The clamp that keeps every scale's energy, so that only the domain differs.
         m.arch.specular = domain;
         m.arch.clamp = kpcn::model::Clamp::Spread;
     }
@@ -475,45 +474,36 @@ fn a_denoiser_is_shared_between_threads() {
 }
 
 #[test]
-fn strided_host_buffers_denoise_like_planes() {
-    use kpcn::io::{ImageView, InputViews};
-    let k = frame(9, 7, 6, false);
-    // Interleave into RGBA rows padded by 5 floats, as a host might hold them.
+fn named_host_images_denoise_like_planes() {
+    use kpcn::io::NamedImages;
+    // As the C ABI takes a host's images: by name, the beauty's RGB and each variance.
     let (w, h) = (9, 7);
-    let rgba = |p: &[Vec<f32>; 3]| -> Vec<f32> {
-        let mut v = vec![-1.0; h * (w * 4 + 5)];
-        for y in 0..h {
-            for x in 0..w {
-                for c in 0..3 {
-                    v[y * (w * 4 + 5) + x * 4 + c] = p[c][y * w + x];
-                }
-            }
-        }
-        v
-    };
-    fn view(v: &[f32], w: usize, h: usize) -> ImageView<'_> {
-        ImageView { data: v, width: w, height: h, channels: 3, pixel_stride: 4, row_stride: w * 4 + 5 }
+    let k = frame(w, h, 6, false);
+    let mut images = NamedImages::new(w, h);
+    let rgb = [
+        ("color", &k.color),
+        ("diffuse", &k.diffuse),
+        ("specular", &k.specular),
+        ("albedo", &k.albedo),
+        ("normal", &k.normal),
+    ];
+    for (name, planes) in rgb {
+        images.insert(name, planes.to_vec()).unwrap();
     }
-    fn plane(p: &[f32], w: usize, h: usize) -> ImageView<'_> {
-        ImageView::packed(p, w, h, 1)
+    let planes = [
+        ("depth", &k.depth),
+        ("diffuseVariance", &k.diffuse_variance),
+        ("specularVariance", &k.specular_variance),
+        ("albedoVariance", &k.albedo_variance),
+        ("normalVariance", &k.normal_variance),
+        ("depthVariance", &k.depth_variance),
+    ];
+    for (name, p) in planes {
+        images.insert(name, vec![p.clone()]).unwrap();
     }
-    let (c, d, s, a, n) = (rgba(&k.color), rgba(&k.diffuse), rgba(&k.specular), rgba(&k.albedo), rgba(&k.normal));
-    let views = InputViews {
-        color: Some(view(&c, w, h)),
-        diffuse: view(&d, w, h),
-        specular: Some(view(&s, w, h)),
-        albedo: view(&a, w, h),
-        normal: view(&n, w, h),
-        depth: plane(&k.depth, w, h),
-        diffuse_variance: Some(plane(&k.diffuse_variance, w, h)),
-        specular_variance: Some(plane(&k.specular_variance, w, h)),
-        albedo_variance: Some(plane(&k.albedo_variance, w, h)),
-        normal_variance: Some(plane(&k.normal_variance, w, h)),
-        depth_variance: Some(plane(&k.depth_variance, w, h)),
-    };
-    let from_views = KpcnInputs::from_views(&views).unwrap();
-    assert_eq!(from_views.diffuse, k.diffuse);
-    let a = run(tiny(Kind::Kpcn, 5), &from_views, None, 1);
+    let named = images.inputs().unwrap();
+    assert_eq!(named.diffuse, k.diffuse);
+    let a = run(tiny(Kind::Kpcn, 5), &named, None, 1);
     let b = run(tiny(Kind::Kpcn, 5), &k, None, 1);
     assert_eq!(a.color, b.color);
 }

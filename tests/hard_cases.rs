@@ -24,28 +24,40 @@ const MODELS: [&str; 4] = ["compact", "fast", "balanced", "high"];
 /// `compact` and `balanced`, retrained with the mean-seeking relative loss and
 /// autoexposure (scripts/train-v2.sh): compact firefly −3.88 / −3.82 %, interior −1.34 %
 /// at 4, slit +4.48 / +2.32 % (brighter; it lost 36 / 24 % before); balanced firefly
-/// −3.96 / −4.44 %, interior −1.01 % at 4, slit +5.0 % at 4 (it lost 52 %). A frame not
-/// listed must stay within 1 %, and a listed one must not move further.
+/// −3.96 / −4.44 %, interior −1.01 % at 4, slit +5.0 % at 4 (it lost 52 %). Then every
+/// multi-scale model got the `fine` firefly clamp (models/README.md), which drops what it
+/// removes wherever the network draws on its finest scale: lower relMSE on Cycles renders,
+/// 1–2 points more loss here (2026-12-02: balanced firefly −5.66 / −6.55 %, interior
+/// −1.38 %; fast and high now also lose 1.0–1.8 % on cornell, interior, corridor or
+/// product at 4 spp). A frame not listed must stay within 1 %, and a listed one must not
+/// move further.
 const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
-    ("compact", "firefly", 4, 0.045),
-    ("compact", "firefly", 16, 0.045),
-    ("compact", "interior", 4, 0.016),
-    ("fast", "firefly", 4, 0.095),
-    ("fast", "firefly", 16, 0.06),
-    ("balanced", "firefly", 4, 0.045),
-    ("balanced", "firefly", 16, 0.05),
-    ("balanced", "interior", 4, 0.012),
-    ("high", "firefly", 4, 0.09),
-    ("high", "firefly", 16, 0.067),
-    ("high", "corridor", 4, 0.035),
-    ("high", "corridor", 16, 0.024),
-    ("high", "interior", 4, 0.027),
+    ("compact", "firefly", 4, 0.057),
+    ("compact", "firefly", 16, 0.06),
+    ("compact", "interior", 4, 0.018),
+    ("fast", "firefly", 4, 0.105),
+    ("fast", "firefly", 16, 0.072),
+    ("fast", "cornell", 4, 0.015),
+    ("fast", "interior", 4, 0.02),
+    ("fast", "corridor", 4, 0.018),
+    ("fast", "corridor", 16, 0.013),
+    ("balanced", "firefly", 4, 0.059),
+    ("balanced", "firefly", 16, 0.068),
+    ("balanced", "interior", 4, 0.015),
+    ("high", "cornell", 4, 0.014),
+    ("high", "product", 4, 0.012),
+    ("high", "firefly", 4, 0.102),
+    ("high", "firefly", 16, 0.08),
+    ("high", "corridor", 4, 0.034),
+    ("high", "corridor", 16, 0.021),
+    ("high", "interior", 4, 0.032),
+    ("high", "interior", 16, 0.017),
     ("compact", "slit", 4, 0.05),
     ("compact", "slit", 16, 0.03),
-    ("fast", "slit", 4, 0.275),
-    ("fast", "slit", 16, 0.22),
+    ("fast", "slit", 4, 0.28),
+    ("fast", "slit", 16, 0.225),
     ("balanced", "slit", 4, 0.055),
-    ("high", "slit", 4, 0.39),
+    ("high", "slit", 4, 0.4),
     ("high", "slit", 16, 0.20),
 ];
 

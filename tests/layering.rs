@@ -60,3 +60,20 @@ fn the_checker_sees_references() {
     // The trainer does use the model: a checker that found nothing would pass vacuously.
     assert!(references("train").iter().any(|(_, _, m)| m == "model"));
 }
+
+#[test]
+fn the_library_does_not_expose_the_cli() {
+    // The CLI is the binary's own module (src/main.rs), so its argument types are no
+    // library API: the library root declares no `cli` module and nothing in it names one.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let lib = std::fs::read_to_string(root.join("lib.rs")).unwrap();
+    assert!(
+        !lib.lines().any(|l| l.trim_start().starts_with("pub mod cli") || l.trim() == "mod cli;"),
+        "src/lib.rs declares the CLI"
+    );
+    let main = std::fs::read_to_string(root.join("main.rs")).unwrap();
+    assert!(main.lines().any(|l| l.trim() == "mod cli;"), "src/main.rs should own the CLI");
+    for dir in ["capi", "denoise", "eval", "features", "io", "kernel", "model", "sim", "tile", "train"] {
+        assert_never_names(dir, &["cli"]);
+    }
+}

@@ -91,6 +91,7 @@ fn a_file_the_user_cannot_write_is_not_replaced() {
     std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o444)).unwrap();
     // As root every file is writable: run as `nobody`, for whom the 0444 file (owned by
     // someone else) is read-only although its folder is writable.
+    // SAFETY: geteuid has no preconditions.
     let mut cmd = if unsafe { libc::geteuid() } == 0 {
         // A copy of the binary that `nobody` may run, wherever the checkout lives.
         let bin = dir.path().join("kpcn");

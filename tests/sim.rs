@@ -159,7 +159,7 @@ type = "constant"
     assert!((n - glam::Vec3::Z).abs().max_element() < 1e-6, "{n}");
     assert_eq!([at("albedo.R", x, y), at("albedo.G", x, y), at("albedo.B", x, y)], [0.3, 0.5, 0.7]);
     assert_eq!(at("albedoVariance.Z", x, y), 0.0);
-    // A corner pixel misses everything: zeros, as SPEC §3 says.
+    // A corner pixel misses everything: zeros, as ARCHITECTURE.md §Layout says.
     for c in ["depth.Z", "normal.B", "albedo.R"] {
         assert_eq!(at(c, 0, 0), 0.0, "{c}");
     }

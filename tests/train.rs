@@ -1,7 +1,8 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
-use kpcn::features::{Branch, ChannelOrder, Orientation};
+use kpcn::features::Branch;
 use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing};
+use kpcn::train::augment::{ChannelOrder, Orientation};
 use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
 use kpcn::train::{Loss, TrainOptions, Trainer, l1};
 use std::path::Path;
@@ -97,7 +98,7 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
     let fixed = batch(&frames, &origins, 12, &tiny().arch, Branch::Diffuse).unwrap();
     let mut t = Trainer::new(&tiny(), &data, options(60)).unwrap();
     let loss = |t: &Trainer| {
-        let l = l1(&t.model.predict(true, &fixed.input, &fixed.noisy).unwrap(), &fixed.target).unwrap();
+        let l = l1(&t.model.predict(Branch::Diffuse, &fixed.input, &fixed.noisy).unwrap(), &fixed.target).unwrap();
         l.to_scalar::<f32>().unwrap()
     };
     let before = loss(&t);
@@ -442,7 +443,7 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     assert_eq!(fixed.input.dims(), [frames.len(), 27, 40, 40], "patch + the training margins");
     let mut t = Trainer::new(&ms, &data, opts).unwrap();
     let loss = |t: &Trainer| {
-        let p = t.model.predict(true, &fixed.input, &fixed.noisy).unwrap();
+        let p = t.model.predict(Branch::Diffuse, &fixed.input, &fixed.noisy).unwrap();
         assert_eq!(p.dims(), fixed.target.dims());
         l1(&p, &fixed.target).unwrap().to_scalar::<f32>().unwrap()
     };
@@ -469,8 +470,5 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
         assert!(row.loss_specular.is_finite() || row.loss_combined.is_finite(), "{row:?}");
     }
     let m = t.model.snapshot("linear").unwrap();
-    assert_eq!(
-        kpcn::model::Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.specular,
-        linear.arch.specular
-    );
+    assert_eq!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.specular, linear.arch.specular);
 }

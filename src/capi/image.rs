@@ -54,7 +54,7 @@ pub(crate) struct HostImage {
     row_stride: isize,
 }
 
-// The host promises the memory stays valid and unshared while a call runs (kpcn.h says so).
+// SAFETY: the host promises the memory stays valid and unshared while a call runs (kpcn.h says so).
 unsafe impl Send for HostImage {}
 
 impl HostImage {

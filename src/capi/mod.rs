@@ -1,5 +1,5 @@
 //! The C ABI: `include/kpcn.h` (generated from this module by cbindgen), in the shape users of
-//! Intel Open Image Denoise know. A thin shell over [`Denoiser`]:
+//! Intel Open Image Denoise know. A thin shell over [`crate::denoise::Denoiser`]:
 //!
 //! ```c
 //! KpcnDenoiser* d = NULL;
@@ -21,10 +21,10 @@ mod status;
 pub use image::KpcnFormat;
 pub use status::{KpcnStatus, kpcn_last_error, kpcn_status_string};
 
-use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress};
+use crate::denoise::{Denoisers, FileJob, FileOptions, Options, Progress};
 use crate::io::layout::{KpcnInputs, Layout};
 use crate::io::{NamedImages, WriteOptions};
-use crate::model::Model;
+use crate::model::{Model, registry};
 use image::HostImage;
 use status::{Failure, guard};
 use std::cell::Cell;
@@ -52,13 +52,11 @@ pub struct KpcnOptions {
     pub threads: u32,
     /// Working-memory budget in MB for one tile's network; 0 = the default (512).
     pub max_memory_mb: u32,
-    /// A model by name, or NULL for `"default"`: `"default"` (the quality ladder's
-    /// `"balanced"`), `"compact"` (the 3-level network that was the default), `"spatial"`
-    /// (trained on the spatial variance estimates of frames without variances),
-    /// `"small-flat"`, the ladder's `"fast"`, `"balanced"`, `"high"`, or `"auto"`, which picks per
-    /// frame as `kpcn denoise` does: `default` when the frame has a colour variance (a
-    /// `colorVariance` image; in a file, per-pixel variances or half buffers), `spatial`
-    /// when it has none.
+    /// A model by name, or NULL for `"default"`: `"auto"`, which picks per frame as
+    /// `kpcn denoise` does (the default model when the frame has a colour variance, a
+    /// `colorVariance` image or in a file per-pixel variances or half buffers; `"spatial"`
+    /// when it has none), or a shipped model's name (`kpcn denoise --help` lists them;
+    /// `"default"` is `"balanced"`).
     pub model_name: *const c_char,
     /// A model file (`.safetensors` written by `kpcn train`), or NULL.
     pub model_path: *const c_char,
@@ -78,7 +76,7 @@ pub struct KpcnOptions {
 pub enum KpcnLayout {
     /// Detected from the channel names.
     KpcnLayoutAuto = 0,
-    /// kpcn's own (SPEC §3).
+    /// kpcn's own (ARCHITECTURE.md §Layout).
     KpcnLayoutNative = 1,
     /// Blender Cycles passes.
     KpcnLayoutCycles = 2,
@@ -114,16 +112,15 @@ pub struct KpcnDenoiser {
 }
 
 struct State {
-    denoiser: Denoiser,
-    /// `spatial`, for frames without a colour variance, with model `"auto"` only.
-    spatial: Option<Denoiser>,
+    /// The named model, or `"auto"`'s two.
+    denoisers: Denoisers,
     inputs: Vec<(String, HostImage)>,
     outputs: Vec<(String, HostImage)>,
     progress: (KpcnProgressFn, *mut c_void),
     error: (KpcnErrorFn, *mut c_void),
 }
 
-// The host's pointers (images, callback data) are its to keep valid; kpcn.h says so.
+// SAFETY: the host's pointers (images, callback data) are its to keep valid; kpcn.h says so.
 unsafe impl Send for State {}
 
 /// Output image names and which part of the result each receives.
@@ -273,11 +270,12 @@ unsafe fn read_options<T: Default>(p: *const T, what: &str) -> Result<T, Failure
     // SAFETY: the size first (readable whatever the version), then the whole struct.
     let size = unsafe { (p as *const usize).read_unaligned() };
     check_size(size, size_of::<T>(), what)?;
+    // SAFETY: the host's struct is at least `size_of::<T>()` bytes (checked above).
     Ok(unsafe { p.read_unaligned() })
 }
 
-/// The model the options name; with `"auto"`, `default` (and the caller adds `spatial`).
-fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
+/// The model the options name; `None` for `"auto"`, which loads its own two.
+fn load_model(o: &KpcnOptions) -> Result<Option<Model>, Failure> {
     let name = optional_text(o.model_name, "options.model_name")?;
     let path = optional_text(o.model_path, "options.model_path")?;
     let data = !o.model_data.is_null();
@@ -290,11 +288,10 @@ fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
         Model::from_bytes(bytes, "options.model_data")?
     } else if let Some(p) = path {
         Model::load(Path::new(p))?
+    } else if name == Some(registry::AUTO) {
+        return Ok(None);
     } else {
-        Model::resolve(match name {
-            None | Some("auto") => "default",
-            Some(n) => n,
-        })?
+        Model::resolve(name.unwrap_or(registry::DEFAULT))?
     };
     if model.is_untrained() && !o.allow_untrained {
         return Err(Failure::invalid(format!(
@@ -302,7 +299,7 @@ fn load_model(o: &KpcnOptions) -> Result<Model, Failure> {
             name.unwrap_or("?")
         )));
     }
-    Ok(model)
+    Ok(Some(model))
 }
 
 /// Creates a denoiser (`options` NULL = the defaults) into `*out`; `*out` is NULL on failure.
@@ -329,12 +326,12 @@ pub unsafe extern "C" fn kpcn_denoiser_new(options: *const KpcnOptions, out: *mu
             },
             tile_size: None,
         };
-        let auto = optional_text(o.model_name, "options.model_name")? == Some("auto");
-        let spatial = if auto { Some(Denoiser::new(Model::resolve("spatial")?, opts.clone())?) } else { None };
-        let denoiser = Denoiser::new(model, opts)?;
+        let denoisers = match model {
+            Some(m) => Denoisers::one(m, opts)?,
+            None => Denoisers::auto(opts)?,
+        };
         let state = State {
-            denoiser,
-            spatial,
+            denoisers,
             inputs: Vec::new(),
             outputs: Vec::new(),
             progress: (None, std::ptr::null_mut()),
@@ -482,14 +479,6 @@ impl State {
         }
     }
 
-    /// The denoiser for a frame: `spatial` under `"auto"` when it has no colour variance.
-    fn pick(&self, colour_variance: bool) -> &Denoiser {
-        match &self.spatial {
-            Some(spatial) if !colour_variance => spatial,
-            _ => &self.denoiser,
-        }
-    }
-
     fn execute(&mut self) -> Result<(), Failure> {
         let Some((_, first)) = self.inputs.first() else {
             return Err(Failure::state("no input images are set"));
@@ -504,7 +493,7 @@ impl State {
                 i.width, i.height, self.inputs[0].0
             )));
         }
-        let denoiser = self.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
+        let (denoiser, _) = self.denoisers.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
         // The host's images are copied, then made the network's inputs: checked before
         // any of it is allocated, so that a frame too large fails instead of aborting.
         let copies: usize = self.inputs.iter().map(|(_, i)| i.channels()).sum::<usize>() * w * h * 4;
@@ -584,7 +573,7 @@ pub unsafe extern "C" fn kpcn_denoise_file(
             band_rows: None,
         };
         let job = FileJob::open(Path::new(input), layout)?;
-        let denoiser = s.pick(job.mapping().colour_variance_in_file());
+        let (denoiser, _) = s.denoisers.pick(job.mapping().colour_variance_in_file());
         job.run(denoiser, Path::new(output), &opts, &s.progress())?;
         Ok(())
     })

@@ -2,13 +2,13 @@
 
 use super::Usage;
 use super::sequence::{Pattern, gaps, parse_frames};
-use crate::denoise::{Denoiser, FileJob, FileOptions, Options, Progress, check_output};
-use crate::io::layout::{Layout, Mapping};
-use crate::io::{FrameReader, WriteOptions};
-use crate::model::Model;
 use anyhow::bail;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use kpcn::denoise::{Denoisers, FileJob, FileOptions, Options, Progress, check_output};
+use kpcn::io::layout::Layout;
+use kpcn::io::{FrameReader, WriteOptions};
+use kpcn::model::{Model, Quality, registry};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
@@ -33,23 +33,13 @@ pub struct DenoiseArgs {
     /// are several).
     #[arg(long, value_name = "NAME|all")]
     pub view_layer: Option<String>,
-    /// `auto` picks per file: `default` when the file has per-pixel variances or half
-    /// buffers, `spatial` when it has neither (Blender's own output), trained on the
-    /// spatial variance estimates such files give. Or a shipped model by name (`default`:
-    /// the quality ladder's `balanced`; `compact`: the 3-level network that was the
-    /// default, a little faster through files and lighter on memory, a little worse;
-    /// `spatial`; `small-flat`: flat KPCN, slower, sometimes better); a .safetensors file
-    /// from `kpcn train`; or, with --allow-untrained, an untrained architecture preset
-    /// (`paper`, `small`, `multiscale`) for testing.
-    #[arg(long, default_value = "auto", value_name = "MODEL")]
+    /// The model: `auto` (picks per file), a shipped model's name, or a .safetensors file.
+    #[arg(long, default_value = registry::AUTO, value_name = "MODEL", long_help = model_help())]
     pub model: String,
-    /// A rung of the quality ladder instead of --model: U-Nets that see 188 px around
-    /// each pixel, like OIDN's quality modes. `fast` (≈0.45× the time of OIDN 'high' at
-    /// 720p), `balanced` (≈0.7×; the default), `high` (≈1.2×); models/README.md has their
-    /// quality.
-    /// Trained on per-pixel variances: files without them get spatial estimates.
+    /// A rung of the quality ladder instead of --model, like OIDN's quality modes (the
+    /// same U-Net at three widths; `kpcn model info RUNG` gives its reach and cost).
     #[arg(long, value_enum, conflicts_with = "model", value_name = "fast|balanced|high")]
-    pub quality: Option<QualityArg>,
+    pub quality: Option<Quality>,
     /// Run an untrained preset (its images are useless: it only tests the pipeline).
     #[arg(long)]
     pub allow_untrained: bool,
@@ -176,9 +166,9 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     if args.view_layer.as_deref() == Some("all") && args.layer.is_some() {
         return Err(Usage("--view-layer all names each result <ViewLayer>.Denoised: drop --layer".into()).into());
     }
-    if let Some(c) = args.compression.as_deref().filter(|c| !crate::io::COMPRESSIONS.contains(c)) {
+    if let Some(c) = args.compression.as_deref().filter(|c| !kpcn::io::COMPRESSIONS.contains(c)) {
         return Err(
-            Usage(format!("--compression {c}: unknown — use one of {}", crate::io::COMPRESSIONS.join(", "))).into()
+            Usage(format!("--compression {c}: unknown — use one of {}", kpcn::io::COMPRESSIONS.join(", "))).into()
         );
     }
     check_outputs(&jobs, args)?;
@@ -193,15 +183,17 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         }
     }
     let name = match args.quality {
-        Some(q) => q.rung().name(),
+        Some(q) => q.name(),
         None => args.model.as_str(),
     };
-    let auto = name == "auto";
-    let model = Model::resolve(if auto { "default" } else { name })?;
-    if model.is_untrained() && !args.allow_untrained {
+    // `auto` loads its two models below; any other name is one model.
+    let model = if name == registry::AUTO { None } else { Some(Model::resolve(name)?) };
+    if let Some(m) = model.as_ref().filter(|m| m.is_untrained() && !args.allow_untrained) {
         return Err(Usage(format!(
-            "--model {}: an untrained architecture preset ({}) gives useless images — use `default`, `small-flat` or a trained .safetensors file, or give --allow-untrained to test the pipeline with it",
-            args.model, model.description
+            "--model {}: an untrained architecture preset ({}) gives useless images — use a shipped model ({}) or a trained .safetensors file, or give --allow-untrained to test the pipeline with it",
+            args.model,
+            m.description,
+            registry::shipped_names()
         ))
         .into());
     }
@@ -225,10 +217,10 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    if model.is_untrained() && !args.quiet {
+    if let Some(m) = model.as_ref().filter(|m| m.is_untrained() && !args.quiet) {
         eprintln!(
             "kpcn: warning: model `{}` is UNTRAINED ({}): the result is not a useful denoise — use the default or a trained file",
-            args.model, model.description
+            args.model, m.description
         );
     }
     let options = Options {
@@ -236,9 +228,9 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         max_memory_mb: args.max_memory.max(16),
         tile_size: None,
     };
-    let denoiser = Denoisers {
-        spatial: if auto { Some(Denoiser::new(Model::resolve("spatial")?, options.clone())?) } else { None },
-        chosen: Denoiser::new(model, options)?,
+    let denoiser = match model {
+        Some(m) => Denoisers::one(m, options)?,
+        None => Denoisers::auto(options)?,
     };
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(jobs.len() as u64 * 1000) };
     bar.set_style(
@@ -295,44 +287,17 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--quality` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum QualityArg {
-    /// The cheapest rung.
-    Fast,
-    /// The middle rung.
-    Balanced,
-    /// The best rung.
-    High,
-}
-
-impl QualityArg {
-    /// The ladder's rung.
-    pub fn rung(self) -> crate::model::Quality {
-        match self {
-            QualityArg::Fast => crate::model::Quality::Fast,
-            QualityArg::Balanced => crate::model::Quality::Balanced,
-            QualityArg::High => crate::model::Quality::High,
-        }
-    }
-}
-
-/// The model given, or with `--model auto` the two it picks from.
-struct Denoisers {
-    chosen: Denoiser,
-    /// `spatial`, for files without variances (with `auto` only).
-    spatial: Option<Denoiser>,
-}
-
-impl Denoisers {
-    /// The denoiser for a file: with `auto`, `spatial` when the file has neither per-pixel
-    /// colour variances nor half buffers.
-    fn pick(&self, mapping: &Mapping) -> &Denoiser {
-        match &self.spatial {
-            Some(spatial) if !mapping.colour_variance_in_file() => spatial,
-            _ => &self.chosen,
-        }
-    }
+/// `--model`'s long help, from the registry of shipped models.
+fn model_help() -> String {
+    let list: String = registry::SHIPPED.iter().map(|m| format!("\n  {:<11} {}", m.name, m.about)).collect();
+    format!(
+        "The model. `{auto}` (the default) picks per file: `{with}` when the file has per-pixel variances or half buffers, `{without}` when it has neither (Blender's own output). Or a shipped model by name:{list}\n`default` is `{default}`. Or a .safetensors file from `kpcn train`, or with --allow-untrained an untrained architecture preset ({presets}) to test the pipeline. `kpcn model info NAME` describes any of them.",
+        auto = registry::AUTO,
+        with = registry::auto_choice(true),
+        without = registry::auto_choice(false),
+        default = registry::DEFAULT,
+        presets = registry::PRESETS.map(|p| format!("`{p}`")).join(", "),
+    )
 }
 
 fn denoise_file(
@@ -378,9 +343,8 @@ fn denoise_view_layer(
     let t = std::time::Instant::now();
     let job = FileJob::open_view_layer(input, args.layout.map(|l| l.0), view_layer)?;
     let mapping = job.mapping().clone();
-    let denoiser = denoisers.pick(&mapping);
-    if args.verbose && denoisers.spatial.is_some() {
-        let which = if std::ptr::eq(denoiser, &denoisers.chosen) { "default" } else { "spatial" };
+    let (denoiser, picked) = denoisers.pick(mapping.colour_variance_in_file());
+    if let (Some(which), true) = (picked, args.verbose) {
         bar.suspend(|| println!("{}: --model auto: `{which}`", input.display()));
     }
     if let (Some(chosen), true) = (&mapping.view_layer, mapping.view_layers.len() > 1 && !args.quiet) {
@@ -439,7 +403,7 @@ fn denoise_view_layer(
             bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
         }
     }
-    let crate::io::layout::Remainder { pixels, sum, beauty, .. } = report.remainder;
+    let kpcn::io::layout::Remainder { pixels, sum, beauty, .. } = report.remainder;
     if pixels > 0 && !args.quiet {
         let share = 100.0 * sum / beauty.abs().max(f64::MIN_POSITIVE);
         if share < -1.0 {

@@ -1,10 +1,10 @@
 //! `kpcn eval`: error of images against a reference.
 
-use crate::eval::plot::write_rgb_png;
-use crate::eval::{Metrics, false_colour, metrics, relmse_map};
-use crate::io::FrameBuffers;
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
+use kpcn::eval::plot::write_rgb_png;
+use kpcn::eval::{Metrics, false_colour, metrics, relmse_map};
+use kpcn::io::FrameBuffers;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `kpcn eval`.

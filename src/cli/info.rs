@@ -1,8 +1,8 @@
 //! `kpcn info`: what a file holds and what the denoiser can use.
 
-use crate::io::layout::{Layout, Mapping, MeanStatus};
-use crate::io::{FrameBuffers, FrameReader, IoError, SampleFormat};
 use clap::Args;
+use kpcn::io::layout::{Layout, Mapping, MeanStatus};
+use kpcn::io::{FrameBuffers, FrameReader, IoError, SampleFormat};
 use std::path::PathBuf;
 
 /// Arguments of `kpcn info`.

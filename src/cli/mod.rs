@@ -123,12 +123,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     // Both allocate and free the same large tensors over and over (before any thread
     // starts, so that every thread shares the one kept heap).
     if matches!(cli.command, Command::Train(_) | Command::Speed(_)) {
-        crate::kernel::buffers::keep_freed_memory();
+        kpcn::kernel::buffers::keep_freed_memory();
     }
     if matches!(cli.command, Command::Denoise(_)) {
-        crate::kernel::buffers::return_large_blocks();
+        kpcn::kernel::buffers::return_large_blocks();
         // Memory, not speed: streamed bands read a few chunks at a time.
-        crate::io::decode_exr_on_the_calling_thread().map_err(|e| anyhow::anyhow!("OpenImageIO: {e}"))?;
+        kpcn::io::decode_exr_on_the_calling_thread().map_err(|e| anyhow::anyhow!("OpenImageIO: {e}"))?;
     }
     // `kpcn train` stops gracefully on Ctrl-C instead, after saving its checkpoint.
     if !matches!(cli.command, Command::Train(_)) {
@@ -171,7 +171,7 @@ pub struct Reported(pub usize);
 pub fn threads(requested: Option<usize>, quiet: bool) -> Option<usize> {
     let n = requested?;
     let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
-    let max = crate::denoise::max_threads();
+    let max = kpcn::denoise::max_threads();
     if n > max {
         eprintln!("kpcn: warning: --threads {n} capped to {max} (4 per core on this {cores}-core machine)");
         return Some(max);
@@ -187,16 +187,16 @@ pub fn threads(requested: Option<usize>, quiet: bool) -> Option<usize> {
 /// An error's message for the terminal: the library's text (which names no flags), plus
 /// the command-line flag behind it where there is one.
 pub fn describe_error(e: &anyhow::Error) -> String {
-    use crate::io::IoError;
+    use kpcn::io::IoError;
     // Transparent wrappers hide the I/O error from the source chain: look inside them.
     fn io<'a>(c: &'a (dyn std::error::Error + 'static)) -> Option<&'a IoError> {
         c.downcast_ref::<IoError>()
-            .or_else(|| match c.downcast_ref::<crate::denoise::FileError>() {
-                Some(crate::denoise::FileError::Io(io)) => Some(io),
+            .or_else(|| match c.downcast_ref::<kpcn::denoise::FileError>() {
+                Some(kpcn::denoise::FileError::Io(io)) => Some(io),
                 _ => None,
             })
-            .or_else(|| match c.downcast_ref::<crate::sim::SimError>() {
-                Some(crate::sim::SimError::Io(io)) => Some(io),
+            .or_else(|| match c.downcast_ref::<kpcn::sim::SimError>() {
+                Some(kpcn::sim::SimError::Io(io)) => Some(io),
                 _ => None,
             })
     }

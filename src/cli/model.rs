@@ -1,8 +1,10 @@
 //! `kpcn model`: inspect model files and create initial (untrained) ones.
 
-use crate::model::{Architecture, Design, Kind, Model, Quality};
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
+use kpcn::model::{
+    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_clamp, registry, write_atomically,
+};
 use std::path::PathBuf;
 
 /// Arguments of `kpcn model`.
@@ -27,6 +29,19 @@ pub enum ModelAction {
     Half {
         /// Model name or file.
         model: String,
+        /// Output file (.safetensors).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Rewrite a multi-scale model with another firefly clamp: an inference-time choice,
+    /// so every weight is kept bit for bit (the shipped models' last build step).
+    Clamp {
+        /// Model name or file.
+        model: String,
+        /// The clamp: `hard` (the excess is lost), `spread` (shared over the 3×3
+        /// neighbourhood) or `coarse` (averaged into the coarsest scale).
+        #[arg(long, value_enum, value_name = "hard|spread|coarse")]
+        clamp: Clamp,
         /// Output file (.safetensors).
         #[arg(short, long)]
         output: PathBuf,
@@ -120,25 +135,27 @@ pub fn describe(m: &Model) {
         println!("  kernels       {}×{} at {scales} scale(s)", a.kernel_size, a.kernel_size);
         if a.design == Design::MultiScale {
             let clamp = match a.clamp {
-                crate::model::Clamp::Hard => "hard (8-neighbour maximum; the excess is lost)",
-                crate::model::Clamp::Spread => "spread (the excess shared over the 3×3 neighbourhood)",
+                Clamp::Hard => "hard (8-neighbour maximum; the excess is lost)",
+                Clamp::Spread => "spread (the excess shared over the 3×3 neighbourhood)",
+                Clamp::Coarse => "coarse (the excess averaged into the coarsest scale)",
+                Clamp::Fine => "fine (full resolution only; coarser scales pool the unclamped colour)",
             };
             println!("  firefly clamp {clamp}");
             let specular = match a.specular {
-                crate::model::Specular::Log => "log radiance ln(1 + s), output exp(ŝ) − 1 (biased dark)",
-                crate::model::Specular::Linear => "linear radiance (energy-preserving)",
+                kpcn::model::Specular::Log => "log radiance ln(1 + s), output exp(ŝ) − 1 (biased dark)",
+                kpcn::model::Specular::Linear => "linear radiance (energy-preserving)",
             };
             println!("  specular      kernels filter {specular}");
         }
     }
     let variances = match a.variances {
-        crate::model::Variances::File => "the file's own (spatial estimates where it has none)",
-        crate::model::Variances::Spatial => "3×3 spatial estimates, always (trained on them)",
+        kpcn::model::Variances::File => "the file's own (spatial estimates where it has none)",
+        kpcn::model::Variances::Spatial => "3×3 spatial estimates, always (trained on them)",
     };
     println!("  variances     {variances}");
     let exposure = match a.exposure {
-        crate::model::Exposure::Raw => "raw radiance, as rendered",
-        crate::model::Exposure::Auto => "auto (each frame scaled to a key of 0.18, the output scaled back)",
+        kpcn::model::Exposure::Raw => "raw radiance, as rendered",
+        kpcn::model::Exposure::Auto => "auto (each frame scaled to a key of 0.18, the output scaled back)",
     };
     println!("  exposure      {exposure}");
     println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
@@ -160,6 +177,16 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
         ModelAction::Half { model, output } => {
             let m = Model::resolve(model)?;
             m.save_half(output).with_context(|| format!("{}: cannot write the model", output.display()))?;
+            println!("{}", output.display());
+        }
+        ModelAction::Clamp { model, clamp, output } => {
+            let bytes = match registry::shipped(model) {
+                Some(s) => s.bytes().to_vec(),
+                None => std::fs::read(model).with_context(|| format!("{model}: cannot read the model"))?,
+            };
+            let rewritten = model_file_with_clamp(&bytes, *clamp, model)?;
+            write_atomically(output, &rewritten)
+                .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());
         }
         ModelAction::Init { preset, kind, seed, output } => {

@@ -1,15 +1,15 @@
 //! `kpcn render`, `kpcn scenes` and `kpcn dataset`: the simulator's commands.
 
-use crate::io::WriteOptions;
-use crate::sim::families::{FAMILIES, generate};
-use crate::sim::film::PixelFilter;
-use crate::sim::rng::Sampler;
-use crate::sim::scene::SceneDesc;
-use crate::sim::{RenderOptions, Written, render_to_dir};
-use crate::train::records::{ManifestRow, read_manifest, write_manifest};
 use anyhow::{Context, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use kpcn::io::WriteOptions;
+use kpcn::sim::families::{FAMILIES, generate};
+use kpcn::sim::film::PixelFilter;
+use kpcn::sim::rng::Sampler;
+use kpcn::sim::scene::SceneDesc;
+use kpcn::sim::{RenderOptions, Written, render_to_dir};
+use kpcn::train::records::{ManifestRow, read_manifest, write_manifest};
 use std::path::{Path, PathBuf};
 
 /// Options shared by `render` and `dataset`.

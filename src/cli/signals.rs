@@ -23,7 +23,7 @@ pub fn exit_on_signals() {
         loop {
             let sig = SIGNAL.load(Ordering::SeqCst);
             if sig != 0 {
-                crate::io::atomic::remove_live_temp_files();
+                kpcn::io::atomic::remove_live_temp_files();
                 let what = if sig == libc::SIGINT { "interrupted" } else { "terminated" };
                 eprintln!("kpcn: {what}; partial outputs removed");
                 // _exit, not exit: other threads are still inside OpenImageIO, whose static

@@ -4,19 +4,19 @@
 
 use super::eval::Format;
 use super::study::{Oidn, oidn};
-use crate::denoise::{Denoiser, Options};
-use crate::io::layout::Mapping;
-use crate::io::{FrameBuffers, WriteOptions};
-use crate::kernel::conv::{ConvLayer, conv};
-use crate::kernel::ops::conv2d;
-use crate::kernel::planes::Planes;
-use crate::model::Model;
-use crate::model::{Design, multiscale};
-use crate::sim::families::generate;
-use crate::sim::{RenderOptions, render_to_dir};
 use anyhow::Context;
 use candle_core::{Device, Tensor, Var};
 use clap::Args;
+use kpcn::denoise::{Denoiser, Options};
+use kpcn::io::layout::Mapping;
+use kpcn::io::{FrameBuffers, WriteOptions};
+use kpcn::kernel::conv::{ConvLayer, conv};
+use kpcn::kernel::ops::conv2d;
+use kpcn::kernel::planes::Planes;
+use kpcn::model::Model;
+use kpcn::model::{Design, multiscale};
+use kpcn::sim::families::generate;
+use kpcn::sim::{RenderOptions, render_to_dir};
 
 /// Arguments of `kpcn speed`.
 #[derive(Debug, Args)]
@@ -207,9 +207,8 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
             if !seen.insert(("fwd", cout, cin, k, w, h)) {
                 continue;
             }
-            let x = Planes::from_vec(cin, w, h, crate::rng::SplitMix64(1).centred(cin * w * h));
-            let layer =
-                ConvLayer::new(&crate::rng::SplitMix64(2).centred(cout * cin * k * k), &vec![0.0; cout], cin, k);
+            let x = Planes::from_vec(cin, w, h, kpcn::rng::SplitMix64(1).centred(cin * w * h));
+            let layer = ConvLayer::new(&kpcn::rng::SplitMix64(2).centred(cout * cin * k * k), &vec![0.0; cout], cin, k);
             let seconds = fastest(args.repeat, || {
                 std::hint::black_box(conv(&x, &layer, true));
                 Ok(())
@@ -222,11 +221,11 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
                 continue;
             }
             let dev = Device::Cpu;
-            let x = Var::from_vec(crate::rng::SplitMix64(3).centred(batch * cin * w * w), (batch, cin, w, w), &dev)?;
-            let wt = Var::from_vec(crate::rng::SplitMix64(4).centred(cout * cin * k * k), (cout, cin, k, k), &dev)?;
+            let x = Var::from_vec(kpcn::rng::SplitMix64(3).centred(batch * cin * w * w), (batch, cin, w, w), &dev)?;
+            let wt = Var::from_vec(kpcn::rng::SplitMix64(4).centred(cout * cin * k * k), (cout, cin, k, k), &dev)?;
             let b = Var::from_vec(vec![0.01f32; cout], cout, &dev)?;
             let g =
-                Tensor::from_vec(crate::rng::SplitMix64(5).centred(batch * cout * w * w), (batch, cout, w, w), &dev)?;
+                Tensor::from_vec(kpcn::rng::SplitMix64(5).centred(batch * cout * w * w), (batch, cout, w, w), &dev)?;
             let seconds = fastest(args.repeat, || {
                 let y = conv2d(x.as_tensor(), wt.as_tensor(), b.as_tensor(), true)?;
                 std::hint::black_box(y.apply_op1(Seed(g.clone()))?.backward()?);

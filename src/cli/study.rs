@@ -3,18 +3,18 @@
 //! external peer), and writes a CSV, one log–log plot per scene and a markdown summary.
 
 use super::PEAK_RSS_ENV;
-use crate::denoise::{Denoiser, Options};
-use crate::eval::plot::write_png;
-use crate::eval::study::{self, Cost, MONTE_CARLO, Row};
-use crate::eval::{metrics, rgb};
-use crate::io::layout::{KpcnInputs, Mapping};
-use crate::io::{FrameBuffers, WriteOptions};
-use crate::model::Model;
-use crate::sim::families::{FAMILIES, generate};
-use crate::sim::{RenderOptions, render_to_dir};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use kpcn::denoise::{Denoiser, Options};
+use kpcn::eval::plot::write_png;
+use kpcn::eval::study::{self, Cost, MONTE_CARLO, Row};
+use kpcn::eval::{metrics, rgb};
+use kpcn::io::layout::{KpcnInputs, Mapping};
+use kpcn::io::{FrameBuffers, WriteOptions};
+use kpcn::model::Model;
+use kpcn::sim::families::{FAMILIES, generate};
+use kpcn::sim::{RenderOptions, render_to_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
@@ -237,7 +237,7 @@ pub fn run(args: &StudyArgs) -> anyhow::Result<()> {
             let (_, path) = &written.noisy[0];
             let fb = FrameBuffers::read(path)?;
             let k = Mapping::for_frame(&fb, None).extract(&fb)?;
-            let row = |method: &str, denoise: f64, m: crate::eval::Metrics| Row {
+            let row = |method: &str, denoise: f64, m: kpcn::eval::Metrics| Row {
                 scene: desc.name.clone(),
                 spp,
                 method: method.to_string(),

@@ -1,15 +1,15 @@
 //! `kpcn train`: train KPCN/DPCN weights on a `kpcn dataset` folder.
 
 use super::model::{KindArg, Preset};
-use crate::eval::plot::write_png;
-use crate::kernel::ops::Ops;
-use crate::model::{Clamp, Exposure, Model, Preprocessing, Specular, Variances};
-use crate::train::data::{CheckSet, Dataset};
-use crate::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
-use crate::train::{curves, records};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use kpcn::eval::plot::write_png;
+use kpcn::kernel::ops::Ops;
+use kpcn::model::{Clamp, Exposure, Model, Preprocessing, Specular, Variances};
+use kpcn::train::data::{CheckSet, Dataset};
+use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
+use kpcn::train::{curves, records};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -33,11 +33,11 @@ pub struct TrainArgs {
     /// Start from this model file instead of a fresh Xavier initialisation.
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
-    /// Firefly clamp of a multi-scale colour pyramid: `hard` (the excess is lost) or
-    /// `spread` (shared over the 3×3 neighbourhood, no energy lost). Default: the preset's
-    /// or the --init model's.
-    #[arg(long, value_enum, value_name = "hard|spread")]
-    pub clamp: Option<ClampArg>,
+    /// Firefly clamp of a multi-scale colour pyramid: `hard` (the excess is lost),
+    /// `spread` (shared over the 3×3 neighbourhood) or `coarse` (averaged into the
+    /// coarsest scale). Default: the preset's or the --init model's.
+    #[arg(long, value_enum, value_name = "hard|spread|coarse")]
+    pub clamp: Option<Clamp>,
     /// What the specular kernels filter: `log` (ln(1 + s), as Bako et al.) or `linear`
     /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or
     /// the --init model's.
@@ -148,7 +148,7 @@ pub struct TrainArgs {
 /// Patch selection strategies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Patches {
-    /// SPEC §4: 400 dart-thrown candidates per frame, pruned to 100 by error diffusion over
+    /// ARCHITECTURE.md §Training: 400 dart-thrown candidates per frame, pruned to 100 by error diffusion over
     /// the importance map (relative colour variance + normal variance), 10 % floor.
     Importance,
     /// 100 dart-thrown candidates per frame, unpruned (evenly spread).
@@ -210,15 +210,6 @@ pub enum SpecularArg {
     Log,
     /// Linear radiance.
     Linear,
-}
-
-/// `--clamp` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ClampArg {
-    /// Clamped to the 8 neighbours' maximum.
-    Hard,
-    /// Clamped, with the excess shared over the 3×3 neighbourhood.
-    Spread,
 }
 
 /// Runs `kpcn train`.
@@ -299,10 +290,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
         if let Some(c) = args.clamp {
-            model.arch.clamp = match c {
-                ClampArg::Hard => Clamp::Hard,
-                ClampArg::Spread => Clamp::Spread,
-            };
+            model.arch.clamp = c;
         }
         if let Some(d) = args.specular {
             model.arch.specular = match d {

@@ -13,8 +13,10 @@ use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 use std::borrow::Cow;
 
+mod choice;
 mod file;
 
+pub use choice::Denoisers;
 pub use file::{FileError, FileJob, FileOptions, FileReport, check_output};
 
 /// How to run.
@@ -155,26 +157,20 @@ impl Denoiser {
     /// The tiles of rows `rows` of a `width`×`total_rows` frame (or band with context
     /// rows): `Options::tile_size` squares when given, else the sizes of least work within
     /// `max_memory_mb` ([`tile::size_for_regions`]). Positions are relative to `rows.start`.
-    pub fn tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<tile::Tile> {
+    pub fn tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<Tile> {
         self.tiles_within(width, rows, total_rows, self.options.max_memory_mb << 20)
     }
 
     /// The tiles [`Denoiser::denoise_band`] runs: [`Denoiser::tiles`] within what the
     /// band's features leave of `max_memory_mb` (at least a quarter of it), so that a band
     /// and its tiles share the budget.
-    pub fn band_tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<tile::Tile> {
+    pub fn band_tiles(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> Vec<Tile> {
         let budget = self.options.max_memory_mb << 20;
         let left = budget.saturating_sub(Features::bytes(width, total_rows)).max(budget / 4);
         self.tiles_within(width, rows, total_rows, left)
     }
 
-    fn tiles_within(
-        &self,
-        width: usize,
-        rows: std::ops::Range<usize>,
-        total_rows: usize,
-        budget: usize,
-    ) -> Vec<tile::Tile> {
+    fn tiles_within(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize, budget: usize) -> Vec<Tile> {
         let arch = &self.model.arch;
         // Never tiles smaller than twice the network's reach, whose regions would be
         // mostly context (the default's 192 px at a 64 MB budget: 32-px tiles, 24× slower):
@@ -347,7 +343,7 @@ impl Denoiser {
 
 impl Denoiser {
     /// [`Denoiser::branch`] of a multi-scale network: the tile plus the receptive radius,
-    /// but at most [`Architecture::border_radius`] beyond the frame's edges, extended right
+    /// but at most [`crate::model::Architecture::border_radius`] beyond the frame's edges, extended right
     /// and down to the pooling grid, evaluated whole; the tile's pixels kept. Each end of
     /// the region depends only on the tile's position against the frame, never on the tile
     /// size, so tiles give the whole frame's result.

@@ -1,4 +1,4 @@
-//! Error metrics (SPEC §6), with the conventions of the team's Cycles baseline so numbers
+//! Error metrics (ARCHITECTURE.md §Metrics), with the conventions of the team's Cycles baseline so numbers
 //! compare: relMSE on linear values; PSNR and SSIM on `T(v) = clamp((v/(1+v))^(1/2.2), 0, 1)`
 //! with `v ≥ 0`; SSIM per RGB channel with an 11×11 Gaussian window (σ 1.5), K1 0.01,
 //! K2 0.03, over the valid region, averaged.

@@ -1,4 +1,4 @@
-//! Preprocessing (SPEC §4): from the renderer's buffers to the 27-channel network input of
+//! Preprocessing (ARCHITECTURE.md §Features): from the renderer's buffers to the 27-channel network input of
 //! each branch.
 //!
 //! Per branch, in this order: `[c̃ 3][Gx of (c̃ 3, normal 3, albedo 3, depth 1)][Gy of the
@@ -8,6 +8,12 @@
 use crate::io::layout::KpcnInputs;
 use rayon::prelude::*;
 use std::borrow::Cow;
+
+mod exposure;
+mod repairs;
+
+pub use exposure::{EXPOSURE_BLOCK, EXPOSURE_KEY, ExposureMeter, FrameStats, auto_exposure};
+pub use repairs::{Repairs, repairs};
 
 /// The paper's ε, used in albedo demodulation and recomposition.
 pub const EPSILON: f32 = 0.00316;
@@ -26,72 +32,6 @@ pub enum Branch {
     Diffuse,
     /// Log specular.
     Specular,
-}
-
-/// One of the square's eight symmetries (mirrors and transposition), for training
-/// augmentation: a mirrored or transposed render is as plausible as the render itself.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct Orientation {
-    /// Mirrored left to right.
-    pub flip_x: bool,
-    /// Mirrored top to bottom.
-    pub flip_y: bool,
-    /// Rows and columns exchanged (before the mirrors).
-    pub transpose: bool,
-}
-
-impl Orientation {
-    /// Symmetry `i` of the eight (bits: mirror x, mirror y, transpose); 0 is the identity.
-    pub fn from_index(i: u64) -> Orientation {
-        Orientation { flip_x: i & 1 != 0, flip_y: i & 2 != 0, transpose: i & 4 != 0 }
-    }
-
-    /// CHW planes of `side`² squares, oriented.
-    pub fn apply(self, planes: &[f32], side: usize) -> Vec<f32> {
-        let n = side * side;
-        let mut out = Vec::with_capacity(planes.len());
-        for plane in planes.chunks_exact(n) {
-            for v in 0..side {
-                for u in 0..side {
-                    let (mut x, mut y) = if self.transpose { (v, u) } else { (u, v) };
-                    if self.flip_x {
-                        x = side - 1 - x;
-                    }
-                    if self.flip_y {
-                        y = side - 1 - y;
-                    }
-                    out.push(plane[y * side + x]);
-                }
-            }
-        }
-        out
-    }
-}
-
-/// The colour channels reordered (training augmentation: a render with its red and blue
-/// exchanged is as plausible as the render): channel `c` of the result is channel
-/// `self.0[c]` of the original, in colour, albedo and references alike.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ChannelOrder(pub [usize; 3]);
-
-impl Default for ChannelOrder {
-    /// R, G, B as they are.
-    fn default() -> Self {
-        ChannelOrder([0, 1, 2])
-    }
-}
-
-impl ChannelOrder {
-    /// Order `i` of the six (0 is the identity).
-    pub fn from_index(i: u64) -> ChannelOrder {
-        const ALL: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
-        ChannelOrder(ALL[(i % 6) as usize])
-    }
-
-    /// Three planes (R, G, B) in this order.
-    pub fn pick<T>(self, planes: &[T; 3]) -> [&T; 3] {
-        self.0.map(|c| &planes[c])
-    }
 }
 
 /// A frame's preprocessed buffers (whole frame, sanitised), from which branch inputs of any
@@ -126,97 +66,6 @@ pub struct Features {
     /// The factor the radiance inputs (and their variances, squared) were multiplied by:
     /// 1 for raw inputs; the output is divided by it.
     pub exposure: f32,
-}
-
-/// The key an auto-exposed frame is scaled to: its geometric-mean block luminance.
-pub const EXPOSURE_KEY: f32 = 0.18;
-/// Side of the blocks whose mean luminance [`ExposureMeter`] averages.
-pub const EXPOSURE_BLOCK: usize = 16;
-
-/// A frame's autoexposure, measured row by row so that a streamed frame is read once: the
-/// mean luminance of each 16×16 block (partial at the right and bottom edges), then the
-/// factor that brings the geometric mean of the lit blocks (> 1e-8) to [`EXPOSURE_KEY`].
-/// Blocks, not pixels, so that a few bright samples of a low-spp frame (or its empty
-/// pixels) move it little. A frame with no lit block gets 1.
-#[derive(Debug, Clone)]
-pub struct ExposureMeter {
-    width: usize,
-    /// Luminance sums of the current row of blocks.
-    sums: Vec<f64>,
-    /// Rows of the current row of blocks added so far.
-    rows: usize,
-    /// Σ ln(block mean) over the lit blocks finished so far, and their count.
-    log_sum: f64,
-    lit: usize,
-}
-
-impl ExposureMeter {
-    /// A meter for frames `width` pixels wide.
-    pub fn new(width: usize) -> ExposureMeter {
-        ExposureMeter { width, sums: vec![0.0; width.div_ceil(EXPOSURE_BLOCK)], rows: 0, log_sum: 0.0, lit: 0 }
-    }
-
-    /// Adds the next rows of the frame's colour (whole rows, top to bottom).
-    pub fn add_rows(&mut self, color: [&[f32]; 3]) {
-        let w = self.width;
-        if w == 0 {
-            return;
-        }
-        for y in 0..color[0].len() / w {
-            for x in 0..w {
-                let i = y * w + x;
-                let l =
-                    0.2126 * sanitize(color[0][i]) + 0.7152 * sanitize(color[1][i]) + 0.0722 * sanitize(color[2][i]);
-                self.sums[x / EXPOSURE_BLOCK] += l.max(0.0) as f64;
-            }
-            self.rows += 1;
-            if self.rows == EXPOSURE_BLOCK {
-                self.finish_blocks();
-            }
-        }
-    }
-
-    fn finish_blocks(&mut self) {
-        for (b, sum) in self.sums.iter_mut().enumerate() {
-            let cols = EXPOSURE_BLOCK.min(self.width - b * EXPOSURE_BLOCK);
-            let mean = *sum / (cols * self.rows) as f64;
-            if mean > 1e-8 {
-                self.log_sum += mean.ln();
-                self.lit += 1;
-            }
-            *sum = 0.0;
-        }
-        self.rows = 0;
-    }
-
-    /// The factor to multiply the frame's radiance by.
-    pub fn exposure(mut self) -> f32 {
-        if self.rows > 0 {
-            self.finish_blocks();
-        }
-        if self.lit == 0 {
-            return 1.0;
-        }
-        let e = EXPOSURE_KEY as f64 / (self.log_sum / self.lit as f64).exp();
-        if e.is_finite() && e > 0.0 { e as f32 } else { 1.0 }
-    }
-}
-
-/// Whole-frame statistics that a band of rows is preprocessed with, so that it gets the
-/// same features as the whole frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameStats {
-    /// The largest finite depth ([`max_depth`]).
-    pub max_depth: f32,
-    /// The radiance factor (1, or [`ExposureMeter`]'s).
-    pub exposure: f32,
-}
-
-/// [`ExposureMeter`]'s factor for a whole frame.
-pub fn auto_exposure(k: &KpcnInputs) -> f32 {
-    let mut m = ExposureMeter::new(k.width);
-    m.add_rows(k.color.each_ref().map(Vec::as_slice));
-    m.exposure()
 }
 
 /// Reflects an index into `0..n` (mirror without repeating the edge; folds again for
@@ -352,55 +201,6 @@ pub fn specular_of_log(s_tilde: f32) -> f32 {
     s_tilde.exp_m1()
 }
 
-/// Samples of one input that preprocessing had to repair.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Repairs {
-    /// NaN or ±Inf, replaced by 0.
-    pub nonfinite: usize,
-    /// Finite but outside the input's physical range, clamped into it.
-    pub out_of_range: usize,
-}
-
-/// What [`Features`] repairs in each input, counted over rows `rows` of `k` (the inner rows
-/// of a band, so that a streamed frame counts each row once): NaN/Inf in every input, and
-/// values outside the physical range of albedo [0, 1], normal [−1, 1], depth [0, ∞) and
-/// the variances [0, 1e15] (a negative variance is 0; one above the largest radiance
-/// kpcn keeps, squared or not, is no render's).
-pub fn repairs(k: &KpcnInputs, rows: std::ops::Range<usize>) -> [(&'static str, &'static str, Repairs); 12] {
-    let span = rows.start * k.width..rows.end.min(k.height) * k.width;
-    let count = |planes: &[&Vec<f32>], lo: f32, hi: f32| {
-        let mut r = Repairs::default();
-        for p in planes {
-            for &v in &p[span.clone()] {
-                if !v.is_finite() {
-                    r.nonfinite += 1;
-                } else if v < lo || v > hi {
-                    r.out_of_range += 1;
-                }
-            }
-        }
-        r
-    };
-    fn all(p: &[Vec<f32>; 3]) -> [&Vec<f32>; 3] {
-        [&p[0], &p[1], &p[2]]
-    }
-    let inf = f32::INFINITY;
-    [
-        ("color", "", count(&all(&k.color), -inf, inf)),
-        ("diffuse", "", count(&all(&k.diffuse), -inf, inf)),
-        ("specular", "", count(&all(&k.specular), -inf, inf)),
-        ("albedo", "[0, 1]", count(&all(&k.albedo), 0.0, 1.0)),
-        ("normal", "[-1, 1]", count(&all(&k.normal), -1.0, 1.0)),
-        ("depth", "[0, inf)", count(&[&k.depth], 0.0, inf)),
-        ("colorVariance", "[0, 1e15]", count(&[&k.color_variance], 0.0, MAX_MAGNITUDE)),
-        ("diffuseVariance", "[0, 1e15]", count(&[&k.diffuse_variance], 0.0, MAX_MAGNITUDE)),
-        ("specularVariance", "[0, 1e15]", count(&[&k.specular_variance], 0.0, MAX_MAGNITUDE)),
-        ("albedoVariance", "[0, 1e15]", count(&[&k.albedo_variance], 0.0, MAX_MAGNITUDE)),
-        ("normalVariance", "[0, 1e15]", count(&[&k.normal_variance], 0.0, MAX_MAGNITUDE)),
-        ("depthVariance", "[0, 1e15]", count(&[&k.depth_variance], 0.0, MAX_MAGNITUDE)),
-    ]
-}
-
 impl Features {
     /// Planes a frame's features hold.
     pub const PLANES: usize = 18;
@@ -425,7 +225,7 @@ impl Features {
         // Owned inputs become the features in place (a streamed 4K band's inputs are
         // hundreds of MB); every step is elementwise, so both ways give the same bits.
         let p = Planes::of(k);
-        // Reflectance lies in [0, 1] (SPEC §3); clamping also keeps albedo + ε away from 0,
+        // Reflectance lies in [0, 1] (ARCHITECTURE.md §Layout); clamping also keeps albedo + ε away from 0,
         // and a hostile 1e30 from scaling the output (recomposition uses this albedo).
         let albedo = p.albedo.map(|a| a.map(|v| sanitize(v).clamp(0.0, 1.0)));
         let scaled = |f: f32| move |v: f32| if f == 1.0 { v } else { sanitize(v * f) };
@@ -516,7 +316,7 @@ impl Features {
     }
 
     /// The 10 planes whose gradients are inputs: c̃, normal, albedo, depth.
-    fn guides(&self, b: Branch) -> [&[f32]; 10] {
+    pub(crate) fn guides(&self, b: Branch) -> [&[f32]; 10] {
         let c = self.colour(b);
         [
             &c[0],
@@ -533,57 +333,12 @@ impl Features {
     }
 
     /// The 4 variance planes of branch `b`'s input.
-    fn variances(&self, b: Branch) -> [&[f32]; 4] {
+    pub(crate) fn variances(&self, b: Branch) -> [&[f32]; 4] {
         let var = match b {
             Branch::Diffuse => &self.d_variance,
             Branch::Specular => &self.s_variance,
         };
         [var, &self.normal_variance, &self.albedo_variance, &self.depth_variance]
-    }
-
-    /// The input of branch `b` over the `side`² square at (`x0`, `y0`) as the network
-    /// would see it in a mirrored or transposed frame whose colour channels are reordered
-    /// (training augmentation): the planes are oriented first and the gradients taken
-    /// afterwards, along the oriented axes; colour and albedo reordered alike. The identity
-    /// is [`Features::branch_input`] exactly. (Normals keep their components; the network
-    /// sees only their gradients.)
-    pub fn branch_input_oriented(
-        &self,
-        b: Branch,
-        (x0, y0): (isize, isize),
-        side: usize,
-        o: Orientation,
-        order: ChannelOrder,
-    ) -> Vec<f32> {
-        if o == Orientation::default() && order == ChannelOrder::default() {
-            return self.branch_input(b, x0, y0, side, side);
-        }
-        // One pixel of margin on every side, for the backward differences of the border.
-        let m = side + 2;
-        let all = self.guides(b);
-        // c̃ (0..3) and albedo (6..9) reordered alike.
-        let guides: [&[f32]; 10] = std::array::from_fn(|k| match k {
-            0..3 => all[order.0[k]],
-            6..9 => all[6 + order.0[k - 6]],
-            _ => all[k],
-        });
-        let g = o.apply(&self.region(&guides, x0 - 1, y0 - 1, m, m), m);
-        let at = |k: usize, x: usize, y: usize| g[(k * m + y) * m + x];
-        let mut out = Vec::with_capacity(INPUT_CHANNELS * side * side);
-        let square = |out: &mut Vec<f32>, f: &dyn Fn(usize, usize) -> f32| {
-            (0..side).for_each(|y| (0..side).for_each(|x| out.push(f(x + 1, y + 1))));
-        };
-        for k in 0..3 {
-            square(&mut out, &|x, y| at(k, x, y));
-        }
-        for k in 0..10 {
-            square(&mut out, &|x, y| sanitize(at(k, x, y) - at(k, x - 1, y)));
-        }
-        for k in 0..10 {
-            square(&mut out, &|x, y| sanitize(at(k, x, y) - at(k, x, y - 1)));
-        }
-        out.extend(o.apply(&self.region(&self.variances(b), x0, y0, side, side), side));
-        out
     }
 
     /// The 27-channel input of branch `b` over a region (CHW, reflected past the frame).
@@ -605,60 +360,11 @@ impl Features {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn the_exposure_meter_reads_any_band_split_alike_and_scales_inversely() {
-        let (w, h) = (37, 41);
-        // A ramp with empty pixels, fireflies and a NaN: what a low-spp render holds.
-        let plane = |c: usize| -> Vec<f32> {
-            (0..w * h)
-                .map(|i| match i % 13 {
-                    0 => 0.0,
-                    5 if c == 1 => 1e4,
-                    7 if i == 7 => f32::NAN,
-                    _ => 0.01 * (1 + (i / w) + c) as f32,
-                })
-                .collect()
-        };
-        let color = [plane(0), plane(1), plane(2)];
-        let whole = {
-            let mut m = ExposureMeter::new(w);
-            m.add_rows(color.each_ref().map(Vec::as_slice));
-            m.exposure()
-        };
-        assert!(whole.is_finite() && whole > 0.0);
-        for band in [1, 4, 7, 16, 40] {
-            let mut m = ExposureMeter::new(w);
-            for y0 in (0..h).step_by(band) {
-                let rows = y0 * w..(y0 + band).min(h) * w;
-                m.add_rows(color.each_ref().map(|p| &p[rows.clone()]));
-            }
-            assert_eq!(m.exposure(), whole, "bands of {band} rows");
-        }
-        // Twice as bright, half the exposure.
-        let brighter = color.each_ref().map(|p| p.iter().map(|v| v * 2.0).collect::<Vec<f32>>());
-        let mut m = ExposureMeter::new(w);
-        m.add_rows(brighter.each_ref().map(Vec::as_slice));
-        let half = m.exposure();
-        assert!((half * 2.0 / whole - 1.0).abs() < 1e-5, "{half} against {whole}");
-    }
-
-    #[test]
-    fn a_frame_at_the_key_keeps_its_scale_and_a_black_one_gets_one() {
-        let grey = vec![EXPOSURE_KEY; 20 * 20];
-        let mut m = ExposureMeter::new(20);
-        m.add_rows([&grey, &grey, &grey]);
-        assert!((m.exposure() - 1.0).abs() < 1e-5);
-        let black = vec![0.0; 20 * 20];
-        let mut m = ExposureMeter::new(20);
-        m.add_rows([&black, &black, &black]);
-        assert_eq!(m.exposure(), 1.0);
-        assert_eq!(ExposureMeter::new(0).exposure(), 1.0);
-    }
-
-    fn inputs(w: usize, h: usize, f: impl Fn(usize) -> f32) -> KpcnInputs {
+    /// A `w`×`h` frame whose planes are `f(pixel index)` plus a per-plane offset.
+    pub(crate) fn inputs(w: usize, h: usize, f: impl Fn(usize) -> f32) -> KpcnInputs {
         let p = |o: f32| (0..w * h).map(|i| f(i) + o).collect::<Vec<f32>>();
         KpcnInputs {
             width: w,
@@ -677,82 +383,6 @@ mod tests {
             normal_variance: p(0.002),
             depth_variance: p(0.5),
         }
-    }
-
-    /// `k` with every plane mirrored left to right.
-    fn mirrored(k: &KpcnInputs) -> KpcnInputs {
-        let (w, h) = (k.width, k.height);
-        let m = |p: &Vec<f32>| (0..w * h).map(|i| p[(i / w) * w + (w - 1 - i % w)]).collect::<Vec<f32>>();
-        let m3 = |p: &[Vec<f32>; 3]| [m(&p[0]), m(&p[1]), m(&p[2])];
-        KpcnInputs {
-            width: w,
-            height: h,
-            color: m3(&k.color),
-            diffuse: m3(&k.diffuse),
-            specular: m3(&k.specular),
-            albedo: m3(&k.albedo),
-            normal: m3(&k.normal),
-            depth: m(&k.depth),
-            visibility: None,
-            color_variance: m(&k.color_variance),
-            diffuse_variance: m(&k.diffuse_variance),
-            specular_variance: m(&k.specular_variance),
-            albedo_variance: m(&k.albedo_variance),
-            normal_variance: m(&k.normal_variance),
-            depth_variance: m(&k.depth_variance),
-        }
-    }
-
-    #[test]
-    fn oriented_input_is_the_input_of_the_mirrored_frame() {
-        let k = inputs(20, 16, |i| ((i * 7919) % 97) as f32 / 50.0);
-        let (f, fm) = (Features::new(&k), Features::new(&mirrored(&k)));
-        let (x0, y0, side) = (4, 5, 8);
-        for b in [Branch::Diffuse, Branch::Specular] {
-            let o = Orientation { flip_x: true, ..Default::default() };
-            let got = f.branch_input_oriented(b, (x0, y0), side, o, ChannelOrder::default());
-            let want = fm.branch_input(b, 20 - x0 - side as isize, y0, side, side);
-            assert_eq!(got, want, "{b:?}");
-            let id = f.branch_input_oriented(b, (x0, y0), side, Orientation::default(), ChannelOrder::default());
-            assert_eq!(id, f.branch_input(b, x0, y0, side, side));
-        }
-        // Transposing twice, or mirroring twice, is the identity; the eight are distinct.
-        let sq: Vec<f32> = (0..9).map(|v| v as f32).collect();
-        let all: Vec<Vec<f32>> = (0..8).map(|i| Orientation::from_index(i).apply(&sq, 3)).collect();
-        for (i, a) in all.iter().enumerate() {
-            assert!(all[..i].iter().all(|b| b != a), "symmetry {i} repeats");
-        }
-        let t = Orientation { transpose: true, ..Default::default() };
-        assert_eq!(t.apply(&t.apply(&sq, 3), 3), sq);
-        assert_eq!(all[4], [0.0, 3.0, 6.0, 1.0, 4.0, 7.0, 2.0, 5.0, 8.0]);
-    }
-
-    #[test]
-    fn channel_ordered_input_is_the_input_of_the_reordered_frame() {
-        let mut k = inputs(20, 16, |i| ((i * 7919) % 97) as f32 / 50.0);
-        k.albedo = std::array::from_fn(|c| k.albedo[c].iter().map(|a| a * (0.3 + 0.3 * c as f32)).collect());
-        let f = Features::new(&k);
-        let (x0, y0, side) = (4, 5, 8);
-        for i in 1..6 {
-            let order = ChannelOrder::from_index(i);
-            let mut r = k.clone();
-            for planes in [&mut r.color, &mut r.diffuse, &mut r.specular, &mut r.albedo] {
-                *planes = order.pick(planes).map(Vec::clone);
-            }
-            let fr = Features::new(&r);
-            for b in [Branch::Diffuse, Branch::Specular] {
-                let o = Orientation::from_index(i);
-                let got = f.branch_input_oriented(b, (x0, y0), side, o, order);
-                let want = fr.branch_input_oriented(b, (x0, y0), side, o, ChannelOrder::default());
-                // Equal but for the variances' RGB means, summed in another order.
-                for (j, (g, w)) in got.iter().zip(&want).enumerate() {
-                    assert!((g - w).abs() <= 1e-6 * w.abs().max(1e-3), "{b:?} order {order:?} value {j}: {g} {w}");
-                }
-                assert_ne!(got, f.branch_input_oriented(b, (x0, y0), side, o, ChannelOrder::default()));
-            }
-        }
-        let all: Vec<[usize; 3]> = (0..6).map(|i| ChannelOrder::from_index(i).0).collect();
-        assert!(all.iter().enumerate().all(|(i, a)| !all[..i].contains(a)), "six distinct orders: {all:?}");
     }
 
     #[test]

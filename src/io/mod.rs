@@ -15,7 +15,7 @@ pub use frame::{FrameBuffers, FrameReader, PartLayout, Plane, Window};
 pub use oiio::{
     Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, decode_exr_on_the_calling_thread, oiio_version,
 };
-pub use view::{IMAGE_NAMES, ImageView, InputViews, NamedImages};
+pub use view::{IMAGE_NAMES, NamedImages};
 pub use write::{COMPRESSIONS, FrameWriter, LOSSLESS_COMPRESSIONS, Part, WriteOptions};
 
 /// Rows of `channels` interleaved channels that one OpenImageIO read or write call moves:

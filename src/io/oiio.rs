@@ -229,6 +229,7 @@ impl Input {
             .map(|c| {
                 // SAFETY: `s` validated by `info`, `c` < nchannels.
                 let name = cstr(unsafe { ffi::kpcn_input_channel_name(self.raw, s as i32, c as i32) });
+                // SAFETY: as above.
                 let fmt = unsafe { ffi::kpcn_input_channel_format(self.raw, s as i32, c as i32) };
                 (name, SampleFormat::from_code(fmt))
             })

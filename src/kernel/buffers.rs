@@ -1,6 +1,6 @@
 //! Large `f32` buffers, reused: a fresh multi-megabyte allocation is a fresh `mmap`
 //! whose every 4 KiB page faults on first touch, which cost the multi-scale network a
-//! fifth of its time on large tiles (SPEC §5). Freed planes go back to a small pool, and
+//! fifth of its time on large tiles. Freed planes go back to a small pool, and
 //! new ones are asked to use transparent huge pages.
 
 use std::sync::Mutex;

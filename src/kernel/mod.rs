@@ -1,4 +1,4 @@
-//! Per-pixel kernel application (SPEC §4): softmax over the predicted `k²` weights (max
+//! Per-pixel kernel application (ARCHITECTURE.md §Features): softmax over the predicted `k²` weights (max
 //! subtracted first), then a gather over the `k×k` neighbourhood of the noisy colour,
 //! the same weights for R, G and B. Weight `n = ky·k + kx` is for the neighbour at
 //! `(ky − r, kx − r)`. Not im2col: this is ≈ 1.2 GFLOP per 720p frame for 21×21.

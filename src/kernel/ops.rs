@@ -1,8 +1,8 @@
 //! The kernels of this module as candle operations with their own backward passes, so
 //! training runs the same forward code as inference and differentiates it explicitly
-//! instead of through candle's composed ops (SPEC §5).
+//! instead of through candle's composed ops (slow on CPU: BENCHMARKS.md).
 
-use super::conv::{ConvLayer, conv_batch, weight_gradient};
+use super::conv::{ConvLayer, ConvShape, conv_batch, weight_gradient};
 use super::planes::{self, Planes};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Storage, Tensor};
 use rayon::prelude::*;
@@ -107,7 +107,9 @@ impl CustomOp3 for Conv {
         let (dx, dw) = with_values(wt, "kpcn-conv weights", |wv| {
             let back = ConvLayer::transposed(wv, cout, cin, k);
             let dx = conv_batch(&g, b, w, h, &back, false);
-            let dw = with_values(x, "kpcn-conv input", |xv| Ok(weight_gradient(xv, &g, b, w, h, cin, cout, k)))?;
+            let dw = with_values(x, "kpcn-conv input", |xv| {
+                Ok(weight_gradient(xv, &g, ConvShape { items: b, w, h, cin, cout, k }))
+            })?;
             Ok((dx, dw))
         })?;
         super::buffers::recycle(g);

@@ -121,6 +121,19 @@ impl Planes {
         })
     }
 
+    /// `self − other`, plane by plane (same shapes).
+    pub fn minus(&self, other: &Planes) -> Planes {
+        debug_assert_eq!((self.c, self.w, self.h), (other.c, other.w, other.h));
+        let data = self.data.iter().zip(&other.data).map(|(a, b)| a - b).collect();
+        Planes::from_vec(self.c, self.w, self.h, data)
+    }
+
+    /// Adds `other` (same shape) in place.
+    pub fn add(&mut self, other: &Planes) {
+        debug_assert_eq!((self.c, self.w, self.h), (other.c, other.w, other.h));
+        self.data.iter_mut().zip(&other.data).for_each(|(a, b)| *a += b);
+    }
+
     /// Adds `coarse` (half the size, as many planes) upsampled 2× to the nearest
     /// neighbour, without building the upsampled planes.
     pub fn add_up_nearest(&mut self, coarse: &Planes) {

@@ -143,7 +143,7 @@ macro_rules! apply_row {
             let neg_limit = $set1(-super::LOGIT_LIMIT);
             // NaN → −limit: `max` returns its second operand when the first is NaN.
             let clamp = |l| $min($max(l, neg_limit), limit);
-            // SAFETY (all loads and stores): masked lanes are not touched; the others stay
+            // SAFETY: (all loads and stores) masked lanes are not touched; the others stay
             // inside the slices (asserted).
             unsafe {
                 for x in (0..w).step_by($lanes) {
@@ -201,7 +201,7 @@ apply_row! {
     /// Row `y` of [`super::apply`] with AVX2, 8 pixels at a time.
     ///
     /// # Safety
-    /// AVX2 and FMA are available; sizes as [`apply_row`].
+    /// AVX2 and FMA are available; sizes as [`apply_row()`].
     #[target_feature(enable = "avx2,fma")]
     apply_row_avx2, 8, exp_nonpositive_avx2,
     mask |left| _mm256_cmpgt_epi32(_mm256_set1_epi32(left.min(8) as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7)),

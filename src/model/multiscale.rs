@@ -1,4 +1,4 @@
-//! The multi-scale kernel-predicting network (SPEC §5): a small U-Net whose decoder
+//! The multi-scale kernel-predicting network (ARCHITECTURE.md §Network): a small U-Net whose decoder
 //! predicts 5×5 kernels at full, half and quarter resolution. Each scale's kernels are
 //! applied to the noisy colour at that scale ([`colour_pyramid`]: isolated fireflies
 //! clamped to their neighbours, then 2×2 box averages), and the scales are blended
@@ -22,7 +22,7 @@
 //! candle tensors for training ([`Graph`], differentiable) and plain planes for
 //! inference (`super::pyramid`). Both call the same kernels.
 
-use super::{Architecture, BranchWeights, ModelError};
+use super::{Architecture, BranchWeights, Clamp, ModelError};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::ops::Ops;
 use crate::kernel::planes::Planes;
@@ -111,7 +111,7 @@ pub fn receptive_radius(a: &Architecture) -> usize {
         feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s);
     }
     // Clamped to the 3×3 neighbourhood; spreading the excess reaches one pixel further.
-    let reach = if a.clamp == super::Clamp::Spread { 2 } else { 1 };
+    let reach = if a.clamp == Clamp::Spread { 2 } else { 1 };
     let mut colour: Vec<Span> = vec![(-reach, reach)];
     for s in 1..l {
         colour.push(pool(colour[s - 1], s - 1));
@@ -130,20 +130,45 @@ pub fn receptive_radius(a: &Architecture) -> usize {
     (lo.unsigned_abs().max(hi.unsigned_abs()) as usize).next_multiple_of(a.alignment())
 }
 
-/// The noisy colour at scales `0..levels`: every value first clamped to its 8
-/// neighbours' maximum ([`Planes::clamp_to_neighbours`]), which removes isolated
-/// fireflies before any kernel can keep them or pooling spread them into the coarse
-/// scales that smooth regions draw from; then repeated 2×2 box averages. (Mid-means
-/// instead of averages also stop 2-pixel fireflies, but their downward bias on skewed
-/// low-sample noise cost more than they saved: measured on held-out simulator frames.)
-pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: super::Clamp) -> Vec<Planes> {
-    let mut colour = vec![match clamp {
-        super::Clamp::Hard => noisy.clamp_to_neighbours(),
-        super::Clamp::Spread => noisy.clamp_to_neighbours_spreading(),
-    }];
+/// The noisy colour at scales `0..levels`, each a 2×2 box average of the one above, with
+/// isolated fireflies clamped at full resolution to their 8 neighbours' maximum
+/// ([`Planes::clamp_to_neighbours`]) so that no full-resolution kernel can keep one.
+/// What the clamp removes is lost ([`Clamp::Hard`]), shared over the 3×3 neighbourhood
+/// ([`Clamp::Spread`]), averaged into the coarsest scale ([`Clamp::Coarse`]), or kept in
+/// every coarser scale, which pool the unclamped colour ([`Clamp::Fine`]): smooth regions
+/// draw from those, so there the energy stays without a speck. (Mid-means instead of
+/// averages also stop 2-pixel fireflies, but their downward bias on skewed low-sample
+/// noise cost more than they saved: measured on held-out simulator frames.)
+pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes> {
+    let (first, mut excess) = match clamp {
+        Clamp::Hard => (noisy.clamp_to_neighbours(), None),
+        Clamp::Spread => (noisy.clamp_to_neighbours_spreading(), None),
+        Clamp::Coarse => {
+            let clamped = noisy.clamp_to_neighbours();
+            let excess = noisy.minus(&clamped);
+            (clamped, Some(excess))
+        }
+        Clamp::Fine => {
+            let mut colour = vec![noisy.clamp_to_neighbours()];
+            if levels > 1 {
+                colour.push(noisy.avg_pool2());
+            }
+            drop(noisy);
+            for s in 2..levels {
+                let c = colour[s - 1].avg_pool2();
+                colour.push(c);
+            }
+            return colour;
+        }
+    };
+    let mut colour = vec![first];
     for s in 1..levels {
         let c = colour[s - 1].avg_pool2();
         colour.push(c);
+        excess = excess.map(|e| e.avg_pool2());
+    }
+    if let (Some(e), Some(coarsest)) = (excess, colour.last_mut()) {
+        coarsest.add(&e);
     }
     colour
 }
@@ -290,10 +315,28 @@ mod tests {
         let (w, h) = (16, 8);
         let mut x = vec![0.25f32; 3 * w * h];
         x[5 * w + 9] = 1e4; // red channel only
-        let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x), 3, crate::model::Clamp::Hard);
+        let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x), 3, Clamp::Hard);
         assert_eq!(pyramid.iter().map(|p| (p.w, p.h)).collect::<Vec<_>>(), [(16, 8), (8, 4), (4, 2)]);
         for p in &pyramid {
             assert!(p.data.iter().all(|&v| v == 0.25), "{:?}", p.data);
+        }
+    }
+
+    #[test]
+    fn the_energy_keeping_clamps_keep_a_firefly_out_of_full_resolution_only() {
+        let (w, h) = (16, 8);
+        let mut x = vec![0.25f32; 3 * w * h];
+        x[5 * w + 9] = 1e4 + 0.25;
+        let sum = |p: &Planes| p.plane(0).iter().map(|&v| v as f64).sum::<f64>() * (w * h / (p.w * p.h)) as f64;
+        let total = sum(&Planes::from_vec(3, w, h, x.clone()));
+        for clamp in [Clamp::Coarse, Clamp::Fine] {
+            let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x.clone()), 3, clamp);
+            assert!(pyramid[0].data.iter().all(|&v| v == 0.25), "{clamp:?}: the speck is kept at full resolution");
+            // The coarsest scale holds the whole energy (scaled by its pixels' area)…
+            assert!((sum(&pyramid[2]) - total).abs() < 1e-6 * total, "{clamp:?}");
+            // …and `fine` the middle one too, where `coarse` keeps it out.
+            let middle = (sum(&pyramid[1]) - total).abs() < 1e-6 * total;
+            assert_eq!(middle, clamp == Clamp::Fine, "{clamp:?}");
         }
     }
 

@@ -1,6 +1,6 @@
 //! The film: per-pixel running statistics (Welford) of every per-sample value, snapshot at
 //! the requested sample counts and at their halves (for the half buffers), and turned into
-//! the layered frames of SPEC §3.
+//! the layered frames of ARCHITECTURE.md §Layout.
 
 use super::integrator::{ALBEDO, COLOR, DEPTH, DIFFUSE, NORMAL, SAMPLE_LEN, SPECULAR, VISIBILITY};
 use crate::io::{Attribute, FrameBuffers, IoError, SampleFormat};

@@ -1,5 +1,5 @@
 //! The path tracer: next-event estimation with multiple importance sampling (power
-//! heuristic), Russian roulette, and the per-sample KPCN features of SPEC §3.
+//! heuristic), Russian roulette, and the per-sample KPCN features of ARCHITECTURE.md §Layout.
 
 use super::geometry::{Frame, RAY_EPSILON, Ray};
 use super::light::{Light, LightContext};

@@ -1,7 +1,7 @@
 //! Materials and their BSDFs, evaluated in the local shading frame (normal = +z).
 //!
 //! Each lobe is labelled diffuse or glossy so the film can split radiance into the
-//! `diffuse` and `specular` buffers of SPEC §3.
+//! `diffuse` and `specular` buffers of ARCHITECTURE.md §Layout.
 
 use super::geometry::cosine_hemisphere;
 use super::texture::Texture;

@@ -1,5 +1,5 @@
 //! The simulator: a small physically based path tracer that writes the layered EXRs the
-//! denoiser reads (SPEC §3, §7). Its parts are named for the physics, as in pbrt: `camera`,
+//! denoiser reads (ARCHITECTURE.md §Layout, §Simulator). Its parts are named for the physics, as in pbrt: `camera`,
 //! `geometry` + `bvh`, `material` + `texture`, `light`, `integrator`, `film`; `scene` reads
 //! scene files and enforces their declared effects; `families` generates scene permutations.
 
@@ -139,7 +139,7 @@ pub fn render(
     Ok(RenderOutput { frames, counters })
 }
 
-/// The file name of SPEC §3: `<scene>-<spp zero-padded to 5>spp.exr`.
+/// The file name of ARCHITECTURE.md §Layout: `<scene>-<spp zero-padded to 5>spp.exr`.
 pub fn frame_file_name(scene: &str, spp: u32) -> String {
     format!("{scene}-{spp:05}spp.exr")
 }
@@ -163,7 +163,7 @@ pub struct Written {
 }
 
 /// Renders a scene's checkpoints (and optionally an independent reference with
-/// `reference_spp` samples) into `dir`, with the file names of SPEC §3.
+/// `reference_spp` samples) into `dir`, with the file names of ARCHITECTURE.md §Layout.
 pub fn render_to_dir(
     desc: &scene::SceneDesc,
     opts: &RenderOptions,

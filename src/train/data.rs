@@ -1,9 +1,8 @@
 //! Training data: frames listed in a `kpcn dataset` manifest, their reference targets, an
 //! importance map, and batches of patches.
 
-use crate::features::{
-    Branch, ChannelOrder, Features, Orientation, demodulated, log_specular, log_specular_of, sanitize, specular_of_log,
-};
+use super::augment::{ChannelOrder, Orientation};
+use crate::features::{Branch, Features, demodulated, log_specular, log_specular_of, sanitize, specular_of_log};
 use crate::io::FrameBuffers;
 use crate::io::layout::{KpcnInputs, Mapping, box3};
 use crate::model::{Architecture, Exposure, ModelError, Preprocessing, Variances};
@@ -31,7 +30,7 @@ pub struct Frame {
     uniform_centres: Vec<(usize, usize)>,
 }
 
-/// Candidate patch centres thrown per frame (SPEC §4: ≈400).
+/// Candidate patch centres thrown per frame (ARCHITECTURE.md §Training: ≈400).
 pub const CANDIDATES: usize = 400;
 /// Centres kept per frame after pruning.
 pub const KEPT: usize = 100;
@@ -148,7 +147,7 @@ fn inputs(path: &Path) -> Result<KpcnInputs, DataError> {
     Ok(Mapping::for_frame(&fb, None).extract(&fb)?)
 }
 
-/// Importance of each pixel as a patch centre (SPEC §4): box-filtered relative variance of
+/// Importance of each pixel as a patch centre (ARCHITECTURE.md §Training): box-filtered relative variance of
 /// the noisy colour plus the local variance of the normals, max over channels, `^(1/2.2)`,
 /// capped at 1. Box filters are 3×3 applied `passes` times (≈ a wide window, cheaply).
 pub fn importance(k: &KpcnInputs, passes: usize) -> Vec<f32> {

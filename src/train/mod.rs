@@ -1,97 +1,30 @@
-//! Training (SPEC §4 "Training"): patches from simulator renders, L1 per branch in its
-//! transformed domain (phase 1), then both branches on the recomposed colour (phase 2),
-//! Adam, checkpoints that resume exactly.
+//! Training: patches from rendered frames (the simulator's or a Cycles corpus), each
+//! branch scored on its own target in phase 1, then both on the recomposed colour in
+//! phase 2 ([`Loss`]: L1 as Bako et al., or the relative loss that seeks the mean), Adam,
+//! and checkpoints that resume exactly.
 //!
 //! Convolutions and kernel application run on our own kernels with explicit backward
 //! passes ([`crate::kernel::ops`]), the same forward code as inference; `--stock-candle`
 //! runs candle's own ops instead, for comparison.
 
+pub mod augment;
 pub mod cache;
 pub mod curves;
 pub mod data;
+pub mod losses;
+pub mod optimiser;
 pub mod records;
 
-use crate::features::{Branch, ChannelOrder, EPSILON, Orientation};
+use crate::features::Branch;
 use crate::kernel::ops::Ops;
 #[cfg(doc)]
 use crate::model::Architecture;
-use crate::model::{BranchWeights, Design, Kind, Model, ModelError, Specular, multiscale};
+use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
+use augment::{ChannelOrder, Orientation};
 use candle_core::{DType, Device, Tensor, Var};
+pub use losses::{Loss, l1, recompose, relative_l2, tonemapped_l1};
+pub use optimiser::Adam;
 pub use records::LogRow;
-
-/// Adam (AdamW with weight decay 0) whose state can be saved and restored exactly.
-pub struct Adam {
-    /// Learning rate.
-    pub lr: f64,
-    beta1: f64,
-    beta2: f64,
-    eps: f64,
-    /// Steps taken.
-    pub step: u64,
-    m: Vec<Tensor>,
-    v: Vec<Tensor>,
-}
-
-impl Adam {
-    /// Fresh state for `vars`.
-    pub fn new(vars: &[Var], lr: f64) -> Result<Adam, ModelError> {
-        let zeros = |v: &Var| v.as_tensor().zeros_like();
-        Ok(Adam {
-            lr,
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-            step: 0,
-            m: vars.iter().map(zeros).collect::<Result<_, _>>()?,
-            v: vars.iter().map(zeros).collect::<Result<_, _>>()?,
-        })
-    }
-
-    /// One update from the gradients of `loss`.
-    pub fn step(&mut self, vars: &[Var], loss: &Tensor) -> Result<(), ModelError> {
-        let grads = loss.backward()?;
-        self.step += 1;
-        let t = self.step as i32;
-        let (c1, c2) = (1.0 - self.beta1.powi(t), 1.0 - self.beta2.powi(t));
-        for (i, var) in vars.iter().enumerate() {
-            let Some(g) = grads.get(var.as_tensor()) else { continue };
-            // Detached: a gradient carries the step's autograd graph, and optimiser state
-            // built from it would keep every past step's graph alive (a leak of ~70 MB/step).
-            let g = g.detach();
-            self.m[i] = ((&self.m[i] * self.beta1)? + (&g * (1.0 - self.beta1))?)?.detach();
-            self.v[i] = ((&self.v[i] * self.beta2)? + (g.sqr()? * (1.0 - self.beta2))?)?.detach();
-            let update = ((&self.m[i] / c1)? / ((&self.v[i] / c2)?.sqrt()? + self.eps)?)?;
-            var.set(&(var.as_tensor().detach() - (update * self.lr)?)?)?;
-        }
-        Ok(())
-    }
-
-    /// The moment tensors, named for a checkpoint.
-    pub fn state(&self) -> Vec<(String, Tensor)> {
-        let m = self.m.iter().enumerate().map(|(i, t)| (format!("adam.m.{i}"), t.clone()));
-        m.chain(self.v.iter().enumerate().map(|(i, t)| (format!("adam.v.{i}"), t.clone()))).collect()
-    }
-
-    /// Restores moments saved by [`Adam::state`].
-    pub fn restore(
-        &mut self,
-        tensors: &std::collections::HashMap<String, Tensor>,
-        step: u64,
-    ) -> Result<(), ModelError> {
-        for i in 0..self.m.len() {
-            let get = |k: String| {
-                tensors
-                    .get(&k)
-                    .cloned()
-                    .ok_or_else(|| ModelError::Format { origin: "checkpoint".into(), what: format!("`{k}` missing") })
-            };
-            self.m[i] = get(format!("adam.m.{i}"))?;
-            self.v[i] = get(format!("adam.v.{i}"))?;
-        }
-        self.step = step;
-        Ok(())
-    }
-}
 
 /// Trainable copies of a model's weights.
 pub struct TrainableModel {
@@ -158,8 +91,11 @@ impl TrainableModel {
 
     /// A branch's prediction for a batch (inputs with [`Architecture::train_margins`]
     /// around the patches): d̂ or ŝ, `[B, 3, p, p]`.
-    pub fn predict(&self, diffuse: bool, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
-        let w = weights(if diffuse { &self.diffuse } else { &self.specular });
+    pub fn predict(&self, branch: Branch, input: &Tensor, noisy: &Tensor) -> Result<Tensor, ModelError> {
+        let w = weights(match branch {
+            Branch::Diffuse => &self.diffuse,
+            Branch::Specular => &self.specular,
+        });
         let arch = &self.base.arch;
         if arch.design == Design::MultiScale {
             let (m, _) = arch.train_margins();
@@ -176,68 +112,6 @@ impl TrainableModel {
     }
 }
 
-/// L1 loss, the mean absolute difference.
-pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
-    Ok((a - b)?.abs()?.mean_all()?)
-}
-
-/// Relative squared error `(x − y)² / (sg(x)² + 0.01)`, the training form of relMSE: the
-/// denominator is the prediction with its gradient stopped, so the loss is minimised by the
-/// mean of the plausible references, not by a value biased dark (as with y² in the
-/// denominator) or by their median (as with L1).
-pub fn relative_l2(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let den = (x.detach().sqr()? + 0.01)?;
-    Ok(((x - y)?.sqr()? / den)?.mean_all()?)
-}
-
-/// L1 between tonemapped radiances, ln(1 + max(v, 0)): keeps the shadows' and the
-/// highlights' shapes in view where the relative term is flat.
-pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let t = |v: &Tensor| -> Result<Tensor, ModelError> { Ok((v.relu()? + 1.0)?.log()?) };
-    l1(&t(x)?, &t(y)?)
-}
-
-/// The training loss.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Loss {
-    /// Bako et al.: L1 on each branch's transformed target (irradiance, ln(1 + specular)),
-    /// then L1 on the recomposed colour.
-    #[default]
-    L1,
-    /// [`relative_l2`] + [`tonemapped_l1`] on linear radiance: on the irradiance and the
-    /// specular radiance in phase 1, on the recomposed colour in phase 2.
-    Relative,
-}
-
-impl Loss {
-    /// The loss of a prediction of linear radiance (the irradiance, the colour).
-    pub fn radiance(self, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-        match self {
-            Loss::L1 => l1(x, y),
-            Loss::Relative => Ok((relative_l2(x, y)? + tonemapped_l1(x, y)?)?),
-        }
-    }
-
-    /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
-    pub fn specular(self, domain: Specular, s_hat: &Tensor, target_log: &Tensor) -> Result<Tensor, ModelError> {
-        let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
-        match self {
-            Loss::L1 => Ok(log),
-            Loss::Relative => {
-                let target = (target_log.exp()? - 1.0)?;
-                Ok((relative_l2(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
-            }
-        }
-    }
-}
-
-/// Recomposed colour `(albedo + ε) ⊙ d̂` plus the specular radiance of `ŝ`
-/// ([`Specular::radiance_tensor`]).
-pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor, domain: Specular) -> Result<Tensor, ModelError> {
-    let diffuse = ((albedo + EPSILON as f64)? * d_hat)?;
-    Ok(diffuse.add(&domain.radiance_tensor(s_hat)?)?)
-}
-
 /// A scalar tensor's value.
 pub fn scalar(t: &Tensor) -> Result<f32, ModelError> {
     Ok(t.to_dtype(DType::F32)?.to_scalar::<f32>()?)
@@ -246,94 +120,6 @@ pub fn scalar(t: &Tensor) -> Result<f32, ModelError> {
 /// A tensor on the CPU from a flat vector.
 pub fn tensor(data: Vec<f32>, shape: (usize, usize, usize, usize)) -> Result<Tensor, ModelError> {
     Ok(Tensor::from_vec(data, shape, &Device::Cpu)?)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// d loss / d x for a constant prediction `x` against samples `ys`.
-    fn slope(loss: fn(&Tensor, &Tensor) -> Result<Tensor, ModelError>, x: f32, ys: &[f32]) -> f32 {
-        let v = Var::from_tensor(&Tensor::full(x, ys.len(), &Device::Cpu).unwrap()).unwrap();
-        let y = Tensor::new(ys, &Device::Cpu).unwrap();
-        let g = loss(v.as_tensor(), &y).unwrap().backward().unwrap();
-        g.get(v.as_tensor()).unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap()
-    }
-
-    #[test]
-    fn relative_loss_seeks_the_mean_where_l1_seeks_the_median() {
-        // Skewed plausible references, as where a rare bright sample may or may not be real.
-        let ys = [0.1f32, 0.1, 0.1, 2.0];
-        let mean = ys.iter().sum::<f32>() / 4.0;
-        assert!(slope(relative_l2, mean, &ys).abs() < 1e-6, "stationary at the mean");
-        assert!(slope(relative_l2, 0.1, &ys) < 0.0, "below the mean it pushes up");
-        assert!(slope(relative_l2, 1.0, &ys) > 0.0);
-        // L1's slope is already zero-or-positive just above the median: it keeps the dark value.
-        assert!(slope(l1, 0.11, &ys) > 0.0);
-        // The tonemapped term is finite on negative and huge values.
-        let t = tonemapped_l1(
-            &Tensor::new(&[-1f32, 1e30], &Device::Cpu).unwrap(),
-            &Tensor::new(&[0f32, 1.0], &Device::Cpu).unwrap(),
-        );
-        assert!(scalar(&t.unwrap()).unwrap().is_finite());
-    }
-
-    #[test]
-    fn optimiser_state_keeps_no_autograd_graph() {
-        // Regression: state built from undetached gradients kept every step's graph alive
-        // (24 GB after 600 training steps).
-        let x = Var::from_vec(vec![1.0f32, 2.0], 2, &Device::Cpu).unwrap();
-        let mut adam = Adam::new(std::slice::from_ref(&x), 0.1).unwrap();
-        for _ in 0..3 {
-            let loss = (x.as_tensor().sqr().unwrap().exp().unwrap()).sum_all().unwrap();
-            adam.step(std::slice::from_ref(&x), &loss).unwrap();
-        }
-        assert!(adam.state().iter().all(|(_, t)| !t.track_op()));
-        assert!(x.as_tensor().is_variable());
-    }
-
-    #[test]
-    fn the_cosine_schedule_starts_at_each_phase_rate_and_ends_at_its_floor() {
-        let o = TrainOptions {
-            phase1_steps: 101,
-            phase2_steps: 11,
-            batch: 1,
-            patch: 8,
-            lr: 1e-3,
-            lr_phase2: 1e-4,
-            seed: 0,
-            importance: false,
-            checkpoint_every: 1,
-            validate_every: 1,
-            ops: Default::default(),
-            cosine: true,
-            loss: Loss::L1,
-            augment: false,
-            fireflies: None,
-            permute_channels: false,
-        };
-        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
-        assert!(close(o.learning_rate(1), 1e-3));
-        assert!(close(o.learning_rate(51), 1e-3 * (0.5 + COSINE_FLOOR / 2.0)));
-        assert!(close(o.learning_rate(101), 1e-3 * COSINE_FLOOR));
-        assert!(close(o.learning_rate(102), 1e-4));
-        assert!(close(o.learning_rate(112), 1e-4 * COSINE_FLOOR));
-        assert!((2..=101).all(|s| o.learning_rate(s) < o.learning_rate(s - 1)));
-        let constant = TrainOptions { cosine: false, ..o };
-        assert!(close(constant.learning_rate(60), 1e-3) && close(constant.learning_rate(110), 1e-4));
-    }
-
-    #[test]
-    fn adam_reduces_a_quadratic() {
-        let x = Var::from_vec(vec![3.0f32, -2.0], 2, &Device::Cpu).unwrap();
-        let mut adam = Adam::new(std::slice::from_ref(&x), 0.1).unwrap();
-        for _ in 0..200 {
-            let loss = x.as_tensor().sqr().unwrap().sum_all().unwrap();
-            adam.step(std::slice::from_ref(&x), &loss).unwrap();
-        }
-        let v = x.as_tensor().to_vec1::<f32>().unwrap();
-        assert!(v.iter().all(|a| a.abs() < 0.05), "{v:?}");
-    }
 }
 
 /// How to train.
@@ -600,18 +386,18 @@ impl<'a> Trainer<'a> {
         let lr = self.opts.learning_rate(self.step);
         (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
         if self.step <= self.opts.phase1_steps {
-            let d_hat = self.model.predict(true, &bd.input, &bd.noisy)?;
+            let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
             let ld = self.opts.loss.radiance(&d_hat, &bd.target)?;
             self.adam_d.step(&self.model.vars(true, false), &ld)?;
-            let s_hat = self.model.predict(false, &bs.input, &bs.noisy)?;
+            let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target)?;
             self.adam_s.step(&self.model.vars(false, true), &ls)?;
             row.loss_diffuse = scalar(&ld)? as f64;
             row.loss_specular = scalar(&ls)? as f64;
         } else {
             row.phase = 2;
-            let d = self.model.predict(true, &bd.input, &bd.noisy)?;
-            let s = self.model.predict(false, &bs.input, &bs.noisy)?;
+            let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
+            let s = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
             let lc = self.opts.loss.radiance(&c, &bd.reference)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
@@ -662,5 +448,41 @@ impl<'a> Trainer<'a> {
     /// The options.
     pub fn options(&self) -> &TrainOptions {
         &self.opts
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cosine_schedule_starts_at_each_phase_rate_and_ends_at_its_floor() {
+        let o = TrainOptions {
+            phase1_steps: 101,
+            phase2_steps: 11,
+            batch: 1,
+            patch: 8,
+            lr: 1e-3,
+            lr_phase2: 1e-4,
+            seed: 0,
+            importance: false,
+            checkpoint_every: 1,
+            validate_every: 1,
+            ops: Default::default(),
+            cosine: true,
+            loss: Loss::L1,
+            augment: false,
+            fireflies: None,
+            permute_channels: false,
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(o.learning_rate(1), 1e-3));
+        assert!(close(o.learning_rate(51), 1e-3 * (0.5 + COSINE_FLOOR / 2.0)));
+        assert!(close(o.learning_rate(101), 1e-3 * COSINE_FLOOR));
+        assert!(close(o.learning_rate(102), 1e-4));
+        assert!(close(o.learning_rate(112), 1e-4 * COSINE_FLOOR));
+        assert!((2..=101).all(|s| o.learning_rate(s) < o.learning_rate(s - 1)));
+        let constant = TrainOptions { cosine: false, ..o };
+        assert!(close(constant.learning_rate(60), 1e-3) && close(constant.learning_rate(110), 1e-4));
     }
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 /// The library's seeded generator, for fixtures.
 pub use kpcn::rng::SplitMix64 as Rng;
 
-/// Every channel of the native layout (SPEC §3), with half buffers and variances.
+/// Every channel of the native layout (ARCHITECTURE.md §Layout), with half buffers and variances.
 pub fn native_channels() -> Vec<String> {
     let mut v: Vec<String> = ["R", "G", "B"].map(String::from).to_vec();
     v.extend(["R", "G", "B"].map(|c| format!("colorA.{c}")));

@@ -62,7 +62,7 @@ impl Names<'_> {
 
     /// A variance layer: one channel, or three averaged.
     /// Three per-channel variances (RenderMan's `mse.r/g/b`) are preferred to one, which
-    /// would otherwise match `.r` alone as a scalar; SPEC §3 averages them.
+    /// would otherwise match `.r` alone as a scalar; ARCHITECTURE.md §Layout averages them.
     fn variance(&self, layers: &[&str]) -> Option<Vec<String>> {
         layers.iter().find_map(|l| self.find(l, 3).or_else(|| self.find(l, 1)))
     }
@@ -191,7 +191,7 @@ impl Mapping {
         let specular = Source::Difference(bx(combined.clone()), bx(diffuse.clone()));
         let albedo = pass("DiffCol", "Diffuse Color", 3);
         let normal = pass("Normal", "Normal", 3);
-        // Cycles writes 1e10 at misses; SPEC §3 wants 0.
+        // Cycles writes 1e10 at misses; ARCHITECTURE.md §Layout wants 0.
         let depth = Source::MissAbove(bx(pass("Depth", "Depth", 1)), 1e9);
         let means = [combined, diffuse, specular, albedo, normal, depth, Source::Missing(vec![])];
         Quantity::ALL.iter().zip(means).map(|(&q, m)| Self::entry(q, m, None, None)).collect()

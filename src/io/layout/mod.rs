@@ -1,4 +1,4 @@
-//! The layered-EXR contract (SPEC §3): which channels of a file hold which KPCN input.
+//! The layered-EXR contract (ARCHITECTURE.md §Layout): which channels of a file hold which KPCN input.
 //!
 //! A [`Layout`] is a renderer's naming convention; a [`Mapping`] is a layout applied to
 //! one file's channel names, saying for every input whether it is present, derived from
@@ -45,7 +45,7 @@ impl Layout {
     fn hint(self) -> &'static str {
         match self {
             Layout::Native => {
-                "write the SPEC §3 AOVs (R,G,B, diffuse, specular, albedo, normal, depth and their …Variance channels), or choose the renderer's layout (cycles or renderman)"
+                "write kpcn's native AOVs (R,G,B, diffuse, specular, albedo, normal, depth and their …Variance channels), or choose the renderer's layout (cycles or renderman)"
             }
             Layout::Cycles => {
                 "enable the Combined, Diffuse Direct/Indirect/Color, Normal and Z passes in Blender's View Layer properties and save as multilayer EXR"
@@ -73,7 +73,7 @@ impl FromStr for Layout {
     }
 }
 
-/// The quantities of SPEC §3.
+/// The quantities of ARCHITECTURE.md §Layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Quantity {
     /// Beauty = diffuse + specular.
@@ -104,7 +104,7 @@ impl Quantity {
         Quantity::Visibility,
     ];
 
-    /// The layer name of SPEC §3 (`color` is stored as root `R,G,B`).
+    /// The layer name of ARCHITECTURE.md §Layout (`color` is stored as root `R,G,B`).
     pub fn name(self) -> &'static str {
         match self {
             Quantity::Color => "color",

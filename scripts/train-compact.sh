@@ -4,8 +4,8 @@
 # interruption: the data step is skipped when its manifest exists, and training resumes
 # bit-exactly from the last checkpoint in WORK/run (`--resume`).
 #
-#   scripts/train-default.sh [WORK]        # WORK defaults to ./train-default
-#   KPCN_VARIANCES=spatial scripts/train-default.sh train-spatial
+#   scripts/train-compact.sh [WORK]        # WORK defaults to ./train-compact
+#   KPCN_VARIANCES=spatial scripts/train-compact.sh train-spatial
 #                                          # the same data and recipe on the spatial variance
 #                                          # estimates files without variances give
 #                                          # (models/spatial.safetensors); reuses WORK/data
@@ -13,7 +13,7 @@
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-work=${1:-train-default}
+work=${1:-train-compact}
 steps=${KPCN_STEPS:-8000}
 phase2=${KPCN_PHASE2_STEPS:-500}
 variances=${KPCN_VARIANCES:-file}

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Quality on our own Cycles corpus (scripts/cycles-corpus.sh), the validation set that models
+# are chosen by (never the team's dev set): denoises every noisy frame of the corpus's
+# scenes with each MODEL and prints, per sample count, the geometric mean over scenes of
+# relMSE, and of relMSE with the worst 0.1 % and 1 % of pixels dropped, each also as a
+# multiple of the first model's. SPLIT=validation (default) scores the scenes that training
+# leaves out (seed ≡ 4 mod 5, as scripts/train-cycles.sh); SPLIT=all scores every scene, for
+# models trained on none of them.
+#
+#   benches/quality_corpus.sh CORPUS_DIR MODEL [MODEL...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+corpus=${1:?usage: benches/quality_corpus.sh CORPUS_DIR MODEL [MODEL...]}
+shift
+[ $# -gt 0 ] || { echo "quality_corpus: name at least one model" >&2; exit 2; }
+split=${SPLIT:-validation}
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+cargo build --release --quiet
+kpcn=target/release/kpcn
+# manifest.csv: scene,family,seed,sample_seed,spp,file,reference,render_seconds
+rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" 'which == "all" || $3 % 5 == 4')
+[ -n "$rows" ] || { echo "quality_corpus: no $split scenes in $corpus/manifest.csv" >&2; exit 1; }
+m=0
+for model in "$@"; do
+    while IFS=, read -r scene _ _ _ spp file reference _; do
+        $kpcn denoise "$corpus/$file" -o "$work/den.exr" --model "$model" -q --threads 2
+        s=$($kpcn eval -r "$corpus/$reference" "$work/den.exr" --format csv | tail -1 | cut -d, -f3,6,7)
+        echo "$m $spp $scene ${s//,/ }" >>"$work/scores"
+    done <<<"$rows"
+    m=$((m + 1))
+done
+# Per model and sample count: geometric means, and the same as multiples of model 0's.
+awk -v names="$*" 'BEGIN { split(names, N, " ") }
+    { k = $1 " " $2; for (i = 4; i <= 6; i++) g[k, i] += log($i); n[k]++; spps[$2] = 1; models = $1 > models ? $1 : models }
+    END { for (m = 0; m <= models; m++) for (s in spps) { k = m " " s; b = 0 " " s;
+            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f\n", N[m + 1], s, n[k],
+                exp(g[k, 4] / n[k]), exp(g[k, 5] / n[k]), exp(g[k, 6] / n[k]),
+                exp((g[k, 4] - g[b, 4]) / n[k]), exp((g[k, 5] - g[b, 5]) / n[k]), exp((g[k, 6] - g[b, 6]) / n[k]) } }' "$work/scores" >"$work/table"
+printf '%-44s %4s %6s | %-9s %-9s %-9s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)"
+# In the order the models were named, then by sample count.
+for model in "$@"; do grep "^$model " "$work/table" | sort -k2,2n; done

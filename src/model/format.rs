@@ -1,0 +1,209 @@
+//! The model file: safetensors with the weights of both branches and the architecture in
+//! its metadata (`kpcn:*` keys), read and written atomically.
+
+use super::{Architecture, BranchWeights, Clamp, Design, Exposure, Kind, Model, ModelError, Specular, Variances};
+use crate::features::INPUT_LAYOUT;
+use candle_core::{DType, Device, Tensor};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Model file format version written in the metadata.
+pub const FORMAT_VERSION: &str = "1";
+impl Architecture {
+    pub(super) fn metadata(&self) -> HashMap<String, String> {
+        let kind = match self.kind {
+            Kind::Kpcn => "kpcn",
+            Kind::Dpcn => "dpcn",
+        };
+        [
+            ("kpcn:format", FORMAT_VERSION.to_string()),
+            ("kpcn:input_layout", INPUT_LAYOUT.to_string()),
+            ("kpcn:kind", kind.to_string()),
+            ("kpcn:design", (if self.design == Design::MultiScale { "multiscale" } else { "flat" }).to_string()),
+            ("kpcn:layers", self.layers.to_string()),
+            ("kpcn:channels", self.channels.to_string()),
+            ("kpcn:conv_size", self.conv_size.to_string()),
+            ("kpcn:kernel_size", self.kernel_size.to_string()),
+            ("kpcn:clamp", self.clamp.name().to_string()),
+            ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
+            ("kpcn:specular", (if self.specular == Specular::Linear { "linear" } else { "log" }).to_string()),
+            ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+    }
+
+    fn from_metadata(m: &HashMap<String, String>, origin: &str) -> Result<Self, ModelError> {
+        let err = |what: String| ModelError::Format { origin: origin.into(), what };
+        let get = |k: &str| m.get(k).ok_or_else(|| err(format!("metadata lacks `{k}` (not a kpcn model file?)")));
+        let version = get("kpcn:format")?;
+        if version != FORMAT_VERSION {
+            return Err(err(format!("model format {version}, this kpcn reads format {FORMAT_VERSION}")));
+        }
+        let layout = get("kpcn:input_layout")?;
+        if layout != INPUT_LAYOUT {
+            return Err(err(format!("input layout `{layout}`, this kpcn feeds `{INPUT_LAYOUT}`")));
+        }
+        let num = |k: &str| -> Result<usize, ModelError> {
+            get(k)?.parse().map_err(|_| err(format!("metadata `{k}` is not a number")))
+        };
+        let kind = match get("kpcn:kind")?.as_str() {
+            "kpcn" => Kind::Kpcn,
+            "dpcn" => Kind::Dpcn,
+            other => return Err(err(format!("unknown network kind `{other}`"))),
+        };
+        // Files from before multi-scale networks have no design: flat.
+        let design = match m.get("kpcn:design").map(String::as_str) {
+            None | Some("flat") => Design::Flat,
+            Some("multiscale") => Design::MultiScale,
+            Some(other) => return Err(err(format!("unknown network design `{other}`"))),
+        };
+        let a = Architecture {
+            kind,
+            design,
+            layers: num("kpcn:layers")?,
+            channels: num("kpcn:channels")?,
+            conv_size: num("kpcn:conv_size")?,
+            kernel_size: num("kpcn:kernel_size")?,
+            // Files from before the choice clamp hard.
+            clamp: match m.get("kpcn:clamp").map(String::as_str) {
+                None | Some("hard") => Clamp::Hard,
+                Some("spread") => Clamp::Spread,
+                Some("coarse") => Clamp::Coarse,
+                Some("fine") => Clamp::Fine,
+                Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
+            },
+            // Files from before the choice were trained on the files' variances.
+            variances: match m.get("kpcn:variances").map(String::as_str) {
+                None | Some("file") => Variances::File,
+                Some("spatial") => Variances::Spatial,
+                Some(other) => return Err(err(format!("unknown variance features `{other}`"))),
+            },
+            // Files from before the choice filter log specular.
+            specular: match m.get("kpcn:specular").map(String::as_str) {
+                None | Some("log") => Specular::Log,
+                Some("linear") => Specular::Linear,
+                Some(other) => return Err(err(format!("unknown specular domain `{other}`"))),
+            },
+            // Files from before the choice see raw radiance.
+            exposure: match m.get("kpcn:exposure").map(String::as_str) {
+                None | Some("raw") => Exposure::Raw,
+                Some("auto") => Exposure::Auto,
+                Some(other) => return Err(err(format!("unknown exposure `{other}`"))),
+            },
+        };
+        a.validate(origin)?;
+        Ok(a)
+    }
+}
+
+impl Model {
+    /// Reads a model file.
+    pub fn load(path: &Path) -> Result<Model, ModelError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        Self::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// Parses model-file bytes (`origin` names them in errors).
+    pub fn from_bytes(bytes: &[u8], origin: &str) -> Result<Model, ModelError> {
+        let err = |what: String| ModelError::Format { origin: origin.into(), what };
+        let (_, meta) =
+            safetensors::SafeTensors::read_metadata(bytes).map_err(|e| err(format!("not a safetensors file ({e})")))?;
+        let meta = meta.metadata().clone().unwrap_or_default();
+        let arch = Architecture::from_metadata(&meta, origin)?;
+        let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)?;
+        let branch = |name: &str| -> Result<BranchWeights, ModelError> {
+            let layers = arch
+                .layer_shapes()
+                .into_iter()
+                .enumerate()
+                .map(|(l, (o, i, k))| {
+                    let get = |t: &str, shape: &[usize]| -> Result<Tensor, ModelError> {
+                        let key = format!("{name}.{l}.{t}");
+                        let v = tensors.get(&key).ok_or_else(|| err(format!("tensor `{key}` is missing")))?;
+                        if v.dims() != shape {
+                            return Err(err(format!("tensor `{key}` has shape {:?}, expected {shape:?}", v.dims())));
+                        }
+                        Ok(v.to_dtype(DType::F32)?)
+                    };
+                    Ok((get("weight", &[o, i, k, k])?, get("bias", &[o])?))
+                })
+                .collect::<Result<_, ModelError>>()?;
+            Ok(BranchWeights { layers })
+        };
+        Ok(Model {
+            arch,
+            diffuse: branch("diffuse")?,
+            specular: branch("specular")?,
+            description: meta.get("kpcn:description").cloned().unwrap_or_default(),
+        })
+    }
+
+    /// Serialises the model with its metadata.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, ModelError> {
+        self.to_bytes_with(Vec::new(), HashMap::new())
+    }
+
+    /// Serialises the model plus extra tensors and metadata (training checkpoints); the
+    /// result still loads as a model.
+    pub fn to_bytes_with(
+        &self,
+        extra: Vec<(String, Tensor)>,
+        extra_meta: HashMap<String, String>,
+    ) -> Result<Vec<u8>, ModelError> {
+        let mut meta = self.arch.metadata();
+        meta.insert("kpcn:description".into(), self.description.clone());
+        meta.extend(extra_meta);
+        let mut named = extra;
+        for (name, b) in [("diffuse", &self.diffuse), ("specular", &self.specular)] {
+            for (l, (w, bias)) in b.layers.iter().enumerate() {
+                named.push((format!("{name}.{l}.weight"), w.clone()));
+                named.push((format!("{name}.{l}.bias"), bias.clone()));
+            }
+        }
+        let views: Vec<(String, Tensor)> = named;
+        safetensors::serialize(views.iter().map(|(n, t)| (n.as_str(), t)), Some(meta))
+            .map_err(|e| ModelError::Format { origin: "serialise".into(), what: e.to_string() })
+    }
+
+    /// Writes the model file (through a temporary file, renamed into place).
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        write_atomically(path, &self.to_bytes()?)
+    }
+
+    /// Writes the model file with every weight rounded to half precision (f16): half the
+    /// bytes, for shipping. Loading widens the weights back to f32.
+    pub fn save_half(&self, path: &Path) -> Result<(), ModelError> {
+        let half = |b: &BranchWeights| -> Result<BranchWeights, ModelError> {
+            let layers = b
+                .layers
+                .iter()
+                .map(|(w, bias)| Ok((w.to_dtype(DType::F16)?, bias.to_dtype(DType::F16)?)))
+                .collect::<Result<_, ModelError>>()?;
+            Ok(BranchWeights { layers })
+        };
+        let m = Model { diffuse: half(&self.diffuse)?, specular: half(&self.specular)?, ..self.clone() };
+        write_atomically(path, &m.to_bytes()?)
+    }
+}
+
+/// A model file's bytes with its firefly clamp set to `clamp` (a multi-scale model's):
+/// every tensor and every other metadata entry kept byte for byte.
+pub fn model_file_with_clamp(bytes: &[u8], clamp: Clamp, origin: &str) -> Result<Vec<u8>, ModelError> {
+    let model = Model::from_bytes(bytes, origin)?;
+    let err = |what: String| ModelError::Format { origin: origin.into(), what };
+    if model.arch.design != Design::MultiScale {
+        return Err(err("a flat network has no firefly clamp".into()));
+    }
+    let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| err(e.to_string()))?;
+    let mut meta = meta.metadata().clone().unwrap_or_default();
+    meta.insert("kpcn:clamp".into(), clamp.name().into());
+    let tensors = safetensors::SafeTensors::deserialize(bytes).map_err(|e| err(e.to_string()))?;
+    safetensors::serialize(tensors.tensors(), Some(meta)).map_err(|e| err(e.to_string()))
+}
+
+/// Writes `bytes` to `path` through a temporary file renamed into place.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
+    crate::io::atomic::write_atomically(path, bytes).map_err(|source| ModelError::Io { path: path.into(), source })
+}

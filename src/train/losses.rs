@@ -1,0 +1,100 @@
+//! The training losses, and the recomposition both phases score.
+
+use crate::features::EPSILON;
+use crate::model::{ModelError, Specular};
+use candle_core::Tensor;
+
+/// L1 loss, the mean absolute difference.
+pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
+    Ok((a - b)?.abs()?.mean_all()?)
+}
+
+/// Relative squared error `(x − y)² / (sg(x)² + 0.01)`, the training form of relMSE: the
+/// denominator is the prediction with its gradient stopped, so the loss is minimised by the
+/// mean of the plausible references, not by a value biased dark (as with y² in the
+/// denominator) or by their median (as with L1).
+pub fn relative_l2(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let den = (x.detach().sqr()? + 0.01)?;
+    Ok(((x - y)?.sqr()? / den)?.mean_all()?)
+}
+
+/// L1 between tonemapped radiances, ln(1 + max(v, 0)): keeps the shadows' and the
+/// highlights' shapes in view where the relative term is flat.
+pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let t = |v: &Tensor| -> Result<Tensor, ModelError> { Ok((v.relu()? + 1.0)?.log()?) };
+    l1(&t(x)?, &t(y)?)
+}
+
+/// The training loss.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Loss {
+    /// Bako et al.: L1 on each branch's transformed target (irradiance, ln(1 + specular)),
+    /// then L1 on the recomposed colour.
+    #[default]
+    L1,
+    /// [`relative_l2`] + [`tonemapped_l1`] on linear radiance: on the irradiance and the
+    /// specular radiance in phase 1, on the recomposed colour in phase 2.
+    Relative,
+}
+
+impl Loss {
+    /// The loss of a prediction of linear radiance (the irradiance, the colour).
+    pub fn radiance(self, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+        match self {
+            Loss::L1 => l1(x, y),
+            Loss::Relative => Ok((relative_l2(x, y)? + tonemapped_l1(x, y)?)?),
+        }
+    }
+
+    /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
+    pub fn specular(self, domain: Specular, s_hat: &Tensor, target_log: &Tensor) -> Result<Tensor, ModelError> {
+        let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
+        match self {
+            Loss::L1 => Ok(log),
+            Loss::Relative => {
+                let target = (target_log.exp()? - 1.0)?;
+                Ok((relative_l2(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
+            }
+        }
+    }
+}
+
+/// Recomposed colour `(albedo + ε) ⊙ d̂` plus the specular radiance of `ŝ`
+/// ([`Specular::radiance_tensor`]).
+pub fn recompose(albedo: &Tensor, d_hat: &Tensor, s_hat: &Tensor, domain: Specular) -> Result<Tensor, ModelError> {
+    let diffuse = ((albedo + EPSILON as f64)? * d_hat)?;
+    Ok(diffuse.add(&domain.radiance_tensor(s_hat)?)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::scalar;
+    use candle_core::{Device, Var};
+
+    /// d loss / d x for a constant prediction `x` against samples `ys`.
+    fn slope(loss: fn(&Tensor, &Tensor) -> Result<Tensor, ModelError>, x: f32, ys: &[f32]) -> f32 {
+        let v = Var::from_tensor(&Tensor::full(x, ys.len(), &Device::Cpu).unwrap()).unwrap();
+        let y = Tensor::new(ys, &Device::Cpu).unwrap();
+        let g = loss(v.as_tensor(), &y).unwrap().backward().unwrap();
+        g.get(v.as_tensor()).unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap()
+    }
+
+    #[test]
+    fn relative_loss_seeks_the_mean_where_l1_seeks_the_median() {
+        // Skewed plausible references, as where a rare bright sample may or may not be real.
+        let ys = [0.1f32, 0.1, 0.1, 2.0];
+        let mean = ys.iter().sum::<f32>() / 4.0;
+        assert!(slope(relative_l2, mean, &ys).abs() < 1e-6, "stationary at the mean");
+        assert!(slope(relative_l2, 0.1, &ys) < 0.0, "below the mean it pushes up");
+        assert!(slope(relative_l2, 1.0, &ys) > 0.0);
+        // L1's slope is already zero-or-positive just above the median: it keeps the dark value.
+        assert!(slope(l1, 0.11, &ys) > 0.0);
+        // The tonemapped term is finite on negative and huge values.
+        let t = tonemapped_l1(
+            &Tensor::new(&[-1f32, 1e30], &Device::Cpu).unwrap(),
+            &Tensor::new(&[0f32, 1.0], &Device::Cpu).unwrap(),
+        );
+        assert!(scalar(&t.unwrap()).unwrap().is_finite());
+    }
+}
