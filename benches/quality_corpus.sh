@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# Quality on our own Cycles corpus (scripts/cycles-corpus.sh), the validation set that models
-# are chosen by (never the team's dev set): denoises every noisy frame of the corpus's
-# scenes with each MODEL and prints, per sample count, the geometric mean over scenes of
-# relMSE, and of relMSE with the worst 0.1 % and 1 % of pixels dropped, each also as a
-# multiple of the first model's. SPLIT=validation (default) scores the scenes that training
-# leaves out (seed ≡ 4 mod 5, as scripts/train-cycles.sh); SPLIT=all scores every scene, for
-# models trained on none of them.
+# Quality on our own Cycles renders (scripts/cycles-corpus.sh), the validation set that
+# models are chosen by (never the team's dev set): denoises every noisy frame listed in
+# DIR/manifest.csv (the corpus, or the snapshot scripts/train-cycles.sh trains on) with each
+# MODEL and prints, per sample count, the geometric mean over scenes of relMSE, and of
+# relMSE with the worst 0.1 % and 1 % of pixels dropped, each also as a multiple of the
+# first model's. SPLIT=validation (default) scores the scenes training leaves out (every
+# 5th by name, as `kpcn train --holdout 5`); SPLIT=all scores every scene, for models
+# trained on none of them.
 #
-#   benches/quality_corpus.sh CORPUS_DIR MODEL [MODEL...]
+#   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:?usage: benches/quality_corpus.sh CORPUS_DIR MODEL [MODEL...]}
@@ -19,7 +20,9 @@ trap 'rm -rf "$work"' EXIT
 cargo build --release --quiet
 kpcn=target/release/kpcn
 # manifest.csv: scene,family,seed,sample_seed,spp,file,reference,render_seconds
-rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" 'which == "all" || $3 % 5 == 4')
+held=$(tail -n +2 "$corpus/manifest.csv" | cut -d, -f1 | sort -u | awk 'NR % 5 == 0' | tr '\n' ' ')
+rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" -v held="$held" '
+    BEGIN { split(held, l, " "); for (i in l) h[l[i]] = 1 } which == "all" || ($1 in h)')
 [ -n "$rows" ] || { echo "quality_corpus: no $split scenes in $corpus/manifest.csv" >&2; exit 1; }
 m=0
 for model in "$@"; do

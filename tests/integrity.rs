@@ -140,6 +140,21 @@ fn what_the_beauty_holds_beyond_diffuse_and_specular_is_kept() {
         );
         assert!(col.iter().zip(d).zip(s).all(|((x, d), s)| (x - (d + s)).abs() <= 1e-5 * x.abs().max(1.0)));
     }
+    // Components brighter than the beauty are no emission: the passes disagree, and the
+    // user is told (the difference is still kept, as in the file).
+    let disagreeing = edited(dir.path(), "disagree.exr", |fb| {
+        for c in ["diffuse.R", "diffuse.G", "diffuse.B"] {
+            let v: Vec<f32> = fb.channel(c).unwrap().iter().map(|x| x * 1.5 + 0.05).collect();
+            fb.insert(c, SampleFormat::Float, v).unwrap();
+        }
+    });
+    let out = dir.path().join("disagree-den.exr");
+    let o = kpcn(&["denoise", disagreeing.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("the passes disagree"), "{}", stderr(&o));
+    let again = dir.path().join("emit-again.exr");
+    let o = kpcn(&["denoise", emitting.to_str().unwrap(), "-o", again.to_str().unwrap()]);
+    assert!(!stderr(&o).contains("passes disagree"), "emission is no disagreement: {}", stderr(&o));
     // A beauty named rgba.* is the colour: the same result as the plain file.
     let rgba = edited(dir.path(), "rgba.exr", |fb| {
         for c in ["R", "G", "B"] {

@@ -6,7 +6,8 @@ use std::path::Path;
 use std::process::Command;
 
 /// `oiiotool FRAME.exr.kpcn` through `kpcn.imageio.so` gives exactly `kpcn denoise`'s layer
-/// (`idiff` passes with no tolerance), and a bad configuration is an error naming it.
+/// (`idiff` passes with no tolerance), denoising once per command however often OIIO opens
+/// the file (none for a header), and a bad configuration is oiiotool's own error naming it.
 #[test]
 fn oiio_plugin_denoises_inside_oiiotool() {
     let dir = tempfile::tempdir().unwrap();
@@ -14,11 +15,30 @@ fn oiio_plugin_denoises_inside_oiiotool() {
     run(Command::new(root().join("plugins/oiio/build.sh"))
         .arg(&plugins)
         .env("PKG_CONFIG_PATH", prefix().join("lib/pkgconfig")));
-    let oiiotool = |args: &[&str]| {
-        Command::new("oiiotool").args(args).env("OIIO_LIBRARY_PATH", &plugins).output().expect("oiiotool runs")
+    let host = |program: &str, args: &[&str]| {
+        Command::new(program)
+            .args(args)
+            .env("OIIO_LIBRARY_PATH", &plugins)
+            .env("KPCN_IMAGEIO_VERBOSE", "1")
+            .output()
+            .expect("the OIIO tool runs")
     };
+    let oiiotool = |args: &[&str]| host("oiiotool", args);
+    let denoises = |o: &std::process::Output| String::from_utf8_lossy(&o.stderr).matches("kpcn: denoised ").count();
     let den = dir.path().join("den.exr");
     let input = format!("{EXAMPLE}.kpcn");
+    let out = oiiotool(&[&input, "-o", den.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(denoises(&out), 1, "{}", String::from_utf8_lossy(&out.stderr));
+    // The README's configured command, the same input twice, and a header: once, once, none.
+    let conf = ["--iconfig", "kpcn:model", "balanced", "--iconfig", "kpcn:threads", "2"];
+    let out = oiiotool(&[&conf[..], &[input.as_str(), "-o", den.to_str().unwrap()]].concat());
+    assert_eq!(denoises(&out), 1, "{}", String::from_utf8_lossy(&out.stderr));
+    let sum = dir.path().join("sum.exr");
+    let out = oiiotool(&[&input, &input, "--add", "-o", sum.to_str().unwrap()]);
+    assert!(out.status.success() && denoises(&out) == 1, "{}", String::from_utf8_lossy(&out.stderr));
+    let info = host("iinfo", &[&input]);
+    assert!(info.status.success() && denoises(&info) == 0, "{}", String::from_utf8_lossy(&info.stderr));
     let out = oiiotool(&[&input, "-o", den.to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 
@@ -31,17 +51,23 @@ fn oiio_plugin_denoises_inside_oiiotool() {
     let text = String::from_utf8_lossy(&info.stdout);
     assert!(text.contains("160 x   96, 3 channel, float kpcn") && text.contains("R, G, B"), "{text}");
 
-    // A model that does not exist fails the read, with the library's message.
+    // A model that does not exist fails the read, with the library's message in oiiotool's.
     let bad = oiiotool(&["--iconfig", "kpcn:model", "/nonexistent/m.safetensors", &input, "-o", den.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(!bad.status.success() && err.contains("/nonexistent/m.safetensors"), "{err}");
-    // A file the library refuses (no diffuse, albedo, …): the library's message reaches
-    // oiiotool's user, not only "File does not exist".
+    assert!(
+        !bad.status.success() && err.contains("oiiotool ERROR: read") && err.contains("/nonexistent/m.safetensors"),
+        "{err}"
+    );
+    // A file the library refuses (no diffuse, albedo, …): the library's message is
+    // oiiotool's own error, not "File does not exist".
     let rgb = dir.path().join("rgb.exr");
     run(Command::new("oiiotool").args([EXAMPLE, "--ch", "R,G,B", "-o"]).arg(&rgb));
     let bad = oiiotool(&[&format!("{}.kpcn", rgb.display()), "-o", den.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(!bad.status.success() && err.contains("missing channels diffuse.R"), "{err}");
+    assert!(
+        !bad.status.success() && err.contains("ERROR: read") && err.contains("missing channels diffuse.R"),
+        "{err}"
+    );
     // Nothing is left in the temporary directory.
     let temp = std::env::temp_dir();
     let pid_files = std::fs::read_dir(&temp).unwrap().filter_map(|e| e.ok()).filter(|e| {

@@ -403,23 +403,23 @@ fn denoise_view_layer(
             bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
         }
     }
-    let kpcn::io::layout::Remainder { pixels, sum, beauty, .. } = report.remainder;
-    if pixels > 0 && !args.quiet {
-        let share = 100.0 * sum / beauty.abs().max(f64::MIN_POSITIVE);
-        if share < -1.0 {
-            // Components brighter than the beauty are not emission: the passes disagree.
+    let remainder = &report.remainder;
+    if remainder.pixels > 0 && !args.quiet {
+        if let Some(excess) = remainder.disagreement() {
             bar.suspend(|| {
                 eprintln!(
-                    "kpcn: warning: {}: diffuse + specular exceed the beauty by {:.1} % in {pixels} pixels — the passes disagree (written from different renders or samples?); the difference is kept in the output as it was",
+                    "kpcn: warning: {}: diffuse + specular exceed the beauty by {excess:.1} % in {} pixels — the passes disagree (written from different renders or samples?); the difference is kept in the output as it was",
                     input.display(),
-                    -share
+                    remainder.pixels
                 )
             });
         } else if args.verbose {
             bar.suspend(|| {
                 println!(
-                    "{}: the beauty holds {share:.2} % of its energy beyond diffuse + specular (emission, volumes, …) in {pixels} pixels: carried to the output undenoised",
-                    input.display()
+                    "{}: the beauty holds {:.2} % of its energy beyond diffuse + specular (emission, volumes, …) in {} pixels: carried to the output undenoised",
+                    input.display(),
+                    remainder.share(),
+                    remainder.pixels
                 )
             });
         }

@@ -52,6 +52,20 @@ pub struct Remainder {
 }
 
 impl Remainder {
+    /// How far the components exceed the beauty, in percent of the beauty's energy, when
+    /// by more than 1 %: then the passes disagree (written from different renders or
+    /// sample counts), since what a beauty holds beyond diffuse + specular (emission,
+    /// volumes) only ever adds. `None` when they agree.
+    pub fn disagreement(&self) -> Option<f64> {
+        let excess = -100.0 * self.sum / self.beauty.abs().max(f64::MIN_POSITIVE);
+        (self.pixels > 0 && excess > 1.0).then_some(excess)
+    }
+
+    /// The share of the beauty's energy beyond diffuse + specular, in percent.
+    pub fn share(&self) -> f64 {
+        100.0 * self.sum / self.beauty.abs().max(f64::MIN_POSITIVE)
+    }
+
     /// Adds `other`'s counts and sums to this one's (a frame's report over its bands); the
     /// planes are not kept.
     pub fn absorb_counts(&mut self, other: &Remainder) {

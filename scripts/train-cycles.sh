@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# Fine-tunes a shipped model on our Cycles corpus (scripts/cycles-corpus.sh): the domain
+# the team measures on, instead of the simulator alone. Every 5th scene by name (seed ≡ 4
+# mod 5) is held out for validation, as benches/quality_corpus.sh scores it; the team's
+# dev set is never read.
+#
+#   scripts/train-cycles.sh CORPUS SCENES [MODEL]   # the corpus's first SCENES scenes
+#                                                   # (default model: balanced)
+#   KPCN_WORK=DIR                                   # work folder (default ./train-cycles/ft)
+#   KPCN_STEPS=N KPCN_PHASE2_STEPS=M                # segment length (default 3000 + 500)
+#   KPCN_MAX_FLOOR=F                                # leave out scenes whose reference is
+#                                                   # noisier than relMSE F (default 0.03)
+#
+# Steps, each skipped when done and resumed when interrupted:
+#   1. a frozen snapshot of the corpus's manifest (its first SCENES scenes, less those whose
+#      512-spp reference is itself noisy: corpus.jsonl's reference_relmse_floor above
+#      KPCN_MAX_FLOOR, night scenes lit by tiny lights, where a reference firefly would be
+#      taught as light), so that a corpus still rendering does not change the data under a
+#      resumed run; every 5th of its scenes by name is validation (`--holdout 5`);
+#   2. one segment from MODEL's weights: --loss relative --augment, batch 4, 96-px patches,
+#      lr 5e-5 / 2e-5 cosine, validation every 250 steps (the learning curve in log.csv).
+# Then benches/quality_corpus.sh WORK/data MODEL WORK/run/model.safetensors scores it against
+# MODEL on the same held-out scenes. Runs at low priority (nice 19).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+corpus=${1:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
+scenes=${2:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
+model=${3:-balanced}
+work=${KPCN_WORK:-train-cycles/ft}
+mkdir -p "$work"
+
+cargo build --release --locked --quiet
+# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
+cp target/release/kpcn "$work/kpcn.$$"
+mv "$work/kpcn.$$" "$work/kpcn"
+kpcn=$work/kpcn
+
+data=$work/data
+if [ ! -f "$data/manifest.csv" ]; then
+    mkdir -p "$data"
+    # manifest.csv: scene,family,seed,sample_seed,spp,file,reference,render_seconds; paths
+    # relative to the snapshot's folder.
+    rel=$(realpath --relative-to="$data" "$corpus")
+    noisy=$(python3 -c '
+import json, sys
+for line in open(sys.argv[1]):
+    d = json.loads(line)
+    if d.get("reference_relmse_floor", 0) > float(sys.argv[2]):
+        print(d["scene"])' "$corpus/corpus.jsonl" "${KPCN_MAX_FLOOR:-0.03}" | tr '\n' ' ')
+    found=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v n="$scenes" '$3 < n' | cut -d, -f1 | sort -u | wc -l)
+    [ "$found" -eq "$scenes" ] || { echo "train-cycles: $corpus has $found of the first $scenes scenes" >&2; exit 1; }
+    {
+        head -1 "$corpus/manifest.csv"
+        tail -n +2 "$corpus/manifest.csv" | awk -F, -v n="$scenes" -v rel="$rel" -v noisy="$noisy" '
+            BEGIN { OFS = ","; split(noisy, l, " "); for (i in l) skip[l[i]] = 1 }
+            $3 < n && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+    } >"$data/manifest.partial"
+    echo "train-cycles: left out for noisy references: ${noisy:-none}"
+    mv "$data/manifest.partial" "$data/manifest.csv"
+fi
+
+run=$work/run
+if [ -f "$run/model.safetensors" ]; then
+    echo "$run: done"
+    exit 0
+fi
+start=(--init "$(
+    case $model in
+        *.safetensors) echo "$model" ;;
+        *) "$kpcn" model half "$model" -o "$work/init.safetensors" >/dev/null && echo "$work/init.safetensors" ;;
+    esac
+)")
+[ -f "$run/checkpoint.safetensors" ] && start=(--resume)
+nice -n 19 "$kpcn" train --data "$data" -o "$run" "${start[@]}" --holdout 5 \
+    --steps "${KPCN_STEPS:-3000}" --phase2-steps "${KPCN_PHASE2_STEPS:-500}" --batch 4 --patch 96 \
+    --lr 5e-5 --lr-phase2 2e-5 --schedule cosine --loss relative --augment \
+    --checkpoint-every 200 --validate-every 250 -q
+echo "$run/model.safetensors (log: $run/log.csv)"
