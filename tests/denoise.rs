@@ -480,26 +480,22 @@ fn named_host_images_denoise_like_planes() {
     let (w, h) = (9, 7);
     let k = frame(w, h, 6, false);
     let mut images = NamedImages::new(w, h);
-    let rgb = [
-        ("color", &k.color),
-        ("diffuse", &k.diffuse),
-        ("specular", &k.specular),
-        ("albedo", &k.albedo),
-        ("normal", &k.normal),
+    let one = |p: &Vec<f32>| vec![p.clone()];
+    let all: [(&str, Vec<Vec<f32>>); 11] = [
+        ("color", k.color.to_vec()),
+        ("diffuse", k.diffuse.to_vec()),
+        ("specular", k.specular.to_vec()),
+        ("albedo", k.albedo.to_vec()),
+        ("normal", k.normal.to_vec()),
+        ("depth", one(&k.depth)),
+        ("diffuseVariance", one(&k.diffuse_variance)),
+        ("specularVariance", one(&k.specular_variance)),
+        ("albedoVariance", one(&k.albedo_variance)),
+        ("normalVariance", one(&k.normal_variance)),
+        ("depthVariance", one(&k.depth_variance)),
     ];
-    for (name, planes) in rgb {
-        images.insert(name, planes.to_vec()).unwrap();
-    }
-    let planes = [
-        ("depth", &k.depth),
-        ("diffuseVariance", &k.diffuse_variance),
-        ("specularVariance", &k.specular_variance),
-        ("albedoVariance", &k.albedo_variance),
-        ("normalVariance", &k.normal_variance),
-        ("depthVariance", &k.depth_variance),
-    ];
-    for (name, p) in planes {
-        images.insert(name, vec![p.clone()]).unwrap();
+    for (name, planes) in all {
+        images.insert(name, planes).unwrap();
     }
     let named = images.inputs().unwrap();
     assert_eq!(named.diffuse, k.diffuse);

@@ -183,7 +183,7 @@ impl Quality {
     pub const ALL: [Quality; 3] = [Quality::Fast, Quality::Balanced, Quality::High];
 
     /// The rung's name (`fast`, `balanced`, `high`): also its shipped model's.
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Quality::Fast => "fast",
             Quality::Balanced => "balanced",

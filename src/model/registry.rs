@@ -30,17 +30,17 @@ impl Shipped {
 /// Every shipped model, the default first, then the rest of the quality ladder.
 pub static SHIPPED: [Shipped; 6] = [
     Shipped {
-        name: "balanced",
+        name: Quality::Balanced.name(),
         about: "the default: the quality ladder's middle rung, a 5-level U-Net",
         bytes: include_bytes!("../../models/balanced.safetensors"),
     },
     Shipped {
-        name: "fast",
+        name: Quality::Fast.name(),
         about: "the ladder's narrowest rung: about 0.6× balanced's time",
         bytes: include_bytes!("../../models/fast.safetensors"),
     },
     Shipped {
-        name: "high",
+        name: Quality::High.name(),
         about: "the ladder's widest rung: about 1.6× balanced's time",
         bytes: include_bytes!("../../models/high.safetensors"),
     },
@@ -62,7 +62,7 @@ pub static SHIPPED: [Shipped; 6] = [
 ];
 
 /// The model that runs when none is named; `default` is another name for it.
-pub const DEFAULT: &str = "balanced";
+pub const DEFAULT: &str = Quality::Balanced.name();
 
 /// The name that picks a model per frame ([`auto_choice`]).
 pub const AUTO: &str = "auto";
