@@ -7,7 +7,9 @@ set -euo pipefail
 # sanitizer runtimes) build the C-ABI tests' C99 and C++17 programs. The plugin tests run
 # the real hosts: oiiotool/idiff (openimageio-tools) and Blender 3.4 (blender), headless, and
 # an OpenFX host built on HostSupport, which parses plugin caches with expat (libexpat1-dev).
-packages=(libopenimageio-dev libclang-dev pkg-config gcc g++ fonts-dejavu-core openimageio-tools blender libexpat1-dev)
+# python3-venv holds openjd-cli (below).
+packages=(libopenimageio-dev libclang-dev pkg-config gcc g++ fonts-dejavu-core openimageio-tools blender libexpat1-dev
+    python3-venv)
 
 # cbindgen generates include/kpcn.h (a test checks it is current). Debian's 0.24 cannot
 # parse edition 2024, so it comes from crates.io, pinned.
@@ -23,15 +25,24 @@ for p in "${packages[@]}"; do
         missing+=("$p")
     fi
 done
-if ((${#missing[@]} == 0)); then
-    exit 0
+if ((${#missing[@]} > 0)); then
+    sudo=""
+    if [ "$(id -u)" -ne 0 ]; then
+        sudo="sudo"
+    fi
+    echo "kpcn setup: installing ${missing[*]}" >&2
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    echo "kpcn setup: done" >&2
 fi
 
-sudo=""
-if [ "$(id -u)" -ne 0 ]; then
-    sudo="sudo"
+# openjd-cli runs the render-farm job template in its test (plugins/openjd), as a farm
+# would: from PyPI, pinned, in its own virtual environment (Debian's Python refuses pip
+# installs outside one). tests/farm.rs looks for it there.
+openjd_version=0.8.0
+openjd_venv=${XDG_CACHE_HOME:-$HOME/.cache}/kpcn/openjd
+if ! "$openjd_venv/bin/openjd" --version 2>/dev/null | grep -qx "Open Job Description CLI $openjd_version"; then
+    echo "kpcn setup: installing openjd-cli $openjd_version into $openjd_venv" >&2
+    python3 -m venv "$openjd_venv"
+    "$openjd_venv/bin/pip" install --quiet --disable-pip-version-check "openjd-cli==$openjd_version"
 fi
-echo "kpcn setup: installing ${missing[*]}" >&2
-$sudo apt-get update -qq
-DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-echo "kpcn setup: done" >&2

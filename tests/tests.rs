@@ -6,6 +6,7 @@ mod capi;
 mod cli;
 mod denoise;
 mod eval;
+mod farm;
 mod hard_cases;
 mod integrity;
 mod io_errors;
