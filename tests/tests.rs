@@ -4,6 +4,7 @@ mod util;
 
 mod capi;
 mod cli;
+mod deb;
 mod denoise;
 mod eval;
 mod farm;

@@ -8,9 +8,11 @@ set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 out=${1:-$here/build}
 mkdir -p "$out"
-libdir=$(pkg-config --variable=libdir kpcn)
+# The plugin finds libkpcn through an rpath to kpcn.pc's libdir; KPCN_PLUGIN_RPATH overrides
+# it, and empty means none (a system library: scripts/build-deb.sh).
+rpath=${KPCN_PLUGIN_RPATH-$(pkg-config --variable=libdir kpcn)}
 # shellcheck disable=SC2046 # pkg-config's flags are meant to split
 g++ -std=c++17 -O2 -shared -fPIC -Wall -Wextra -Werror -Wno-deprecated-declarations \
     "$here/kpcn_imageio.cpp" -o "$out/kpcn.imageio.so" \
-    $(pkg-config --cflags --libs OpenImageIO kpcn) -Wl,-rpath,"$libdir"
+    $(pkg-config --cflags --libs OpenImageIO kpcn) ${rpath:+-Wl,-rpath,"$rpath"}
 echo "$out/kpcn.imageio.so"

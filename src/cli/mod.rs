@@ -2,6 +2,7 @@
 //! library.
 
 mod denoise;
+mod docs;
 mod eval;
 mod info;
 mod model;
@@ -106,6 +107,11 @@ pub enum Command {
     Speed(speed::SpeedArgs),
     /// Inspect model files or write an untrained one.
     Model(model::ModelArgs),
+    /// Print a shell's completion script (bash, zsh, fish, elvish, powershell).
+    #[command(after_help = "Examples:\n  kpcn completions bash > ~/.local/share/bash-completion/completions/kpcn")]
+    Completions(docs::CompletionsArgs),
+    /// Write the man pages (kpcn.1 and one per command) into a folder.
+    Manpages(docs::ManpagesArgs),
 }
 
 /// When set, `kpcn` prints `peak-rss-kb N` (its VmHWM) to stderr on exit: how `kpcn study`
@@ -146,6 +152,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Curves(args) => train::run_curves(&args),
         Command::Study(args) => study::run(&args),
         Command::Speed(args) => speed::run(&args),
+        Command::Completions(args) => docs::run_completions(&args),
+        Command::Manpages(args) => docs::run_manpages(&args),
     }
 }
 
