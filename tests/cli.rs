@@ -240,6 +240,9 @@ fn auto_picks_the_spatial_model_for_files_without_variances() {
         let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", auto.to_str().unwrap(), "-v"]);
         assert!(o.status.success(), "{}", text(&o.stderr));
         assert!(text(&o.stdout).contains(&format!("--model auto: `{picked}`")), "{}", text(&o.stdout));
+        // -v also says where the time went.
+        let stages = ["read ", "features ", "network ", "write "];
+        assert!(stages.iter().all(|s| text(&o.stdout).contains(s)), "{}", text(&o.stdout));
         let named = dir.path().join("named.exr");
         let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", named.to_str().unwrap(), "-q", "--model", picked]);
         assert!(o.status.success(), "{}", text(&o.stderr));

@@ -437,6 +437,15 @@ fn denoise_view_layer(
                 output.display(),
                 Layout::name(mapping.layout),
                 t.elapsed().as_secs_f64()
+            );
+            let s = &report.stages;
+            println!(
+                "{}: read {:.2} s, features {:.2} s, network {:.2} s, write {:.2} s",
+                input.display(),
+                s.read.as_secs_f64(),
+                s.features.as_secs_f64(),
+                s.network.as_secs_f64(),
+                s.write.as_secs_f64()
             )
         });
     }

@@ -52,8 +52,8 @@ pub enum ModelAction {
         #[arg(long, value_enum, default_value_t = Preset::Small)]
         preset: Preset,
         /// Kernel prediction or direct prediction.
-        #[arg(long, value_enum, default_value_t = KindArg::Kpcn)]
-        kind: KindArg,
+        #[arg(long, value_enum, default_value_t = Kind::Kpcn)]
+        kind: Kind,
         /// Initialisation seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -84,11 +84,7 @@ pub enum Preset {
 
 impl Preset {
     /// The architecture of this preset and kind.
-    pub fn architecture(self, kind: KindArg) -> anyhow::Result<Architecture> {
-        let kind = match kind {
-            KindArg::Kpcn => Kind::Kpcn,
-            KindArg::Dpcn => Kind::Dpcn,
-        };
+    pub fn architecture(self, kind: Kind) -> anyhow::Result<Architecture> {
         Ok(match self {
             Preset::Paper => Architecture::paper(kind),
             Preset::Small => Architecture::small(kind),
@@ -101,15 +97,6 @@ impl Preset {
             }
         })
     }
-}
-
-/// Network kinds.
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum KindArg {
-    /// Kernel prediction.
-    Kpcn,
-    /// Direct prediction.
-    Dpcn,
 }
 
 /// Prints what a model is.
@@ -139,6 +126,7 @@ pub fn describe(m: &Model) {
                 Clamp::Spread => "spread (the excess shared over the 3×3 neighbourhood)",
                 Clamp::Coarse => "coarse (the excess averaged into the coarsest scale)",
                 Clamp::Fine => "fine (full resolution only; coarser scales pool the unclamped colour)",
+                Clamp::FinePairs => "fine-pairs (as fine, to the second-brightest neighbour)",
             };
             println!("  firefly clamp {clamp}");
             let specular = match a.specular {

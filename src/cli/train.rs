@@ -1,12 +1,12 @@
 //! `kpcn train`: train KPCN/DPCN weights on a `kpcn dataset` folder.
 
-use super::model::{KindArg, Preset};
+use super::model::Preset;
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use kpcn::eval::plot::write_png;
 use kpcn::kernel::ops::Ops;
-use kpcn::model::{Clamp, Exposure, Model, Preprocessing, Specular, Variances};
+use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
 use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
 use kpcn::train::{curves, records};
@@ -28,8 +28,8 @@ pub struct TrainArgs {
     #[arg(long, value_enum, default_value_t = Preset::Small)]
     pub preset: Preset,
     /// Kernel prediction or direct prediction.
-    #[arg(long, value_enum, default_value_t = KindArg::Kpcn)]
-    pub kind: KindArg,
+    #[arg(long, value_enum, default_value_t = Kind::Kpcn)]
+    pub kind: Kind,
     /// Start from this model file instead of a fresh Xavier initialisation.
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
@@ -42,19 +42,19 @@ pub struct TrainArgs {
     /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or
     /// the --init model's.
     #[arg(long, value_enum, value_name = "log|linear")]
-    pub specular: Option<SpecularArg>,
+    pub specular: Option<Specular>,
     /// Variance features to train on: `file` (the dataset's own per-pixel variances) or
     /// `spatial` (3×3 spatial estimates, what files without variances, such as Blender's,
     /// give at inference). Recorded in the model, which is then always fed that kind.
     /// Give it again with --resume.
-    #[arg(long, value_enum, default_value_t = VariancesArg::File, value_name = "file|spatial")]
-    pub variances: VariancesArg,
+    #[arg(long, value_enum, default_value_t = Variances::File, value_name = "file|spatial")]
+    pub variances: Variances,
     /// Radiance the network sees: `raw` (as rendered) or `auto` (each frame scaled so its
     /// geometric-mean 16×16 block luminance is 0.18, as OIDN's autoexposure; the output is
     /// scaled back). Recorded in the model. Default: the --init model's, else raw. Give it
     /// again with --resume.
     #[arg(long, value_enum, value_name = "raw|auto")]
-    pub exposure: Option<ExposureArg>,
+    pub exposure: Option<Exposure>,
     /// Phase-1 steps: each branch alone, L1 in its transformed domain.
     #[arg(long, default_value_t = 1000, value_name = "N")]
     pub steps: u64,
@@ -81,8 +81,8 @@ pub struct TrainArgs {
     /// Loss: `l1` (Bako et al.: L1 on each branch's transformed target, then on the colour)
     /// or `relative` (relMSE with the prediction as its denominator, which seeks the mean
     /// and so keeps brightness, plus L1 on tonemapped radiance). Give it again with --resume.
-    #[arg(long, value_enum, default_value_t = LossArg::L1)]
-    pub loss: LossArg,
+    #[arg(long, value_enum, default_value_t = Loss::L1)]
+    pub loss: Loss,
     /// Show each patch mirrored and/or transposed at random (8 orientations), so the
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
@@ -167,15 +167,6 @@ fn plot(dir: &Path, bar: &ProgressBar) {
     }
 }
 
-/// `--loss` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum LossArg {
-    /// L1 in each branch's domain, then on the colour.
-    L1,
-    /// Relative L2 (mean-seeking) plus tonemapped L1.
-    Relative,
-}
-
 /// `--schedule` values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Schedule {
@@ -185,48 +176,17 @@ pub enum Schedule {
     Cosine,
 }
 
-/// `--exposure` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ExposureArg {
-    /// Radiance as rendered.
-    Raw,
-    /// Each frame auto-exposed.
-    Auto,
-}
-
-/// `--variances` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum VariancesArg {
-    /// The dataset's own.
-    File,
-    /// 3×3 spatial estimates.
-    Spatial,
-}
-
-/// `--specular` values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum SpecularArg {
-    /// ln(1 + s).
-    Log,
-    /// Linear radiance.
-    Linear,
-}
-
 /// Runs `kpcn train`.
 pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     if args.batch == 0 || args.patch < 8 {
         bail!("--batch must be ≥ 1 and --patch ≥ 8");
     }
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
-    let variances = match args.variances {
-        VariancesArg::File => Variances::File,
-        VariancesArg::Spatial => Variances::Spatial,
-    };
+    let variances = args.variances;
     // The --init model, read once: its exposure is the default, and training starts from it.
     let init = if args.resume { None } else { args.init.as_deref().map(Model::load).transpose()? };
     let exposure = match (args.exposure, &init) {
-        (Some(ExposureArg::Raw), _) => Exposure::Raw,
-        (Some(ExposureArg::Auto), _) => Exposure::Auto,
+        (Some(e), _) => e,
         (None, Some(init)) => init.arch.exposure,
         (None, _) => Exposure::Raw,
     };
@@ -246,10 +206,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         validate_every: args.validate_every.max(1),
         ops: if args.stock_candle { Ops::StockCandle } else { Ops::Kpcn },
         cosine: args.schedule == Schedule::Cosine,
-        loss: match args.loss {
-            LossArg::L1 => Loss::L1,
-            LossArg::Relative => Loss::Relative,
-        },
+        loss: args.loss,
         augment: args.augment,
         fireflies: args.fireflies.then(|| {
             let d = Fireflies::default();
@@ -293,10 +250,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             model.arch.clamp = c;
         }
         if let Some(d) = args.specular {
-            model.arch.specular = match d {
-                SpecularArg::Log => Specular::Log,
-                SpecularArg::Linear => Specular::Linear,
-            };
+            model.arch.specular = d;
         }
         model.arch.variances = variances;
         model.arch.exposure = exposure;

@@ -135,6 +135,29 @@ pub struct FileReport {
     /// What the beauty held beyond diffuse + specular, carried to the output undenoised,
     /// counted over the whole frame (no planes).
     pub remainder: crate::io::layout::Remainder,
+    /// Where the time went.
+    pub stages: Stages,
+}
+
+/// Wall time of a file's stages, summed over its bands.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Stages {
+    /// Reading and decoding the input's channels (whole-frame statistics included).
+    pub read: std::time::Duration,
+    /// Mapping the channels to the network's inputs and preprocessing them.
+    pub features: std::time::Duration,
+    /// The network and its kernels.
+    pub network: std::time::Duration,
+    /// Encoding and writing the output.
+    pub write: std::time::Duration,
+}
+
+/// Runs `f`, adding its wall time to `into`.
+fn timed<T>(into: &mut std::time::Duration, f: impl FnOnce() -> T) -> T {
+    let t = std::time::Instant::now();
+    let out = f();
+    *into += t.elapsed();
+    out
 }
 
 /// One input file, opened and mapped, ready to denoise.
@@ -240,7 +263,12 @@ impl FileJob {
 
         // The depth scale and the exposure are whole-frame statistics: one pass over the
         // depth (and colour) channels first.
-        let whole = if bands.len() == 1 { None } else { Some(self.frame_stats(band, denoiser.auto_exposed())?) };
+        let mut stages = Stages::default();
+        let whole = if bands.len() == 1 {
+            None
+        } else {
+            Some(timed(&mut stages.read, || self.frame_stats(band, denoiser.auto_exposed()))?)
+        };
 
         // Output parts: the input's, each with its channels and name (a same-named channel
         // is replaced in place); the new layers join the part that holds the beauty. With
@@ -307,16 +335,17 @@ impl FileJob {
                 .collect();
             for &(a, b) in &bands {
                 if p != beauty_out {
-                    let fb = self.reader.read_band(Some(&copies), a, b)?;
+                    let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
                     let planes: Vec<&[f32]> = copies.iter().map(|n| fb.channel(n).expect("read above")).collect();
-                    writer.write_band(&planes, b - a)?;
+                    timed(&mut stages.write, || writer.write_band(&planes, b - a))?;
                     continue;
                 }
                 let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
                 // The band with its context rows holds only the network's inputs (a wide
                 // network's context is most of the band), and only until they are mapped;
                 // the copied channels are read for the inner rows after the network ran.
-                let fb = self.reader.read_band(Some(&needed), c0, c1)?;
+                let fb = timed(&mut stages.read, || self.reader.read_band(Some(&needed), c0, c1))?;
+                let started = std::time::Instant::now();
                 let inputs = self.mapping.extract(&fb)?;
                 drop(fb);
                 for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
@@ -331,15 +360,15 @@ impl FileJob {
                 let remainder = inputs.remainder(a - c0..b - c0);
                 report.remainder.absorb_counts(&remainder);
                 let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
+                stages.features += started.elapsed();
                 let step = |p: Progress| progress(Progress { done: done + p.done, total });
-                let mut d = denoiser
-                    .denoise_band(&f, a - c0..b - c0, &step)
+                let mut d = timed(&mut stages.network, || denoiser.denoise_band(&f, a - c0..b - c0, &step))
                     .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
                 d.carry(&remainder);
                 drop(f);
                 done += tiles_in(a, b);
                 let new = new_planes(&d, opts.aovs);
-                let fb = self.reader.read_band(Some(&copies), a, b)?;
+                let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
                 let planes: Vec<&[f32]> = channels
                     .iter()
                     .map(|(_, _, src)| match src {
@@ -347,12 +376,13 @@ impl FileJob {
                         Src::Input(n) => fb.channel(n).expect("read above"),
                     })
                     .collect();
-                writer.write_band(&planes, b - a)?;
+                timed(&mut stages.write, || writer.write_band(&planes, b - a))?;
             }
         }
-        writer.commit()?;
+        timed(&mut stages.write, || writer.commit())?;
         totals.retain(|t| t.2 != features::Repairs::default());
         report.repairs = totals;
+        report.stages = stages;
         Ok(report)
     }
 

@@ -17,7 +17,7 @@ mod choice;
 mod file;
 
 pub use choice::Denoisers;
-pub use file::{FileError, FileJob, FileOptions, FileReport, check_output};
+pub use file::{FileError, FileJob, FileOptions, FileReport, Stages, check_output};
 
 /// How to run.
 #[derive(Debug, Clone)]

@@ -79,20 +79,37 @@ impl Planes {
     /// lowered at most to its second-brightest pixel. The result is still a value of the
     /// neighbourhood, so a convex filter of it stays in the range of the original.
     pub fn clamp_to_neighbours(&self) -> Planes {
+        self.clamp_to_ranked_neighbour(false)
+    }
+
+    /// [`Planes::clamp_to_neighbours`] to the second-brightest of the 8 neighbours instead:
+    /// a pair of adjacent outliers goes too, and anything at least three pixels across
+    /// keeps its extent.
+    pub fn clamp_to_second_neighbour(&self) -> Planes {
+        self.clamp_to_ranked_neighbour(true)
+    }
+
+    fn clamp_to_ranked_neighbour(&self, second: bool) -> Planes {
         let (w, h) = (self.w, self.h);
         Planes::by_rows(self.c, w, h, |c, y, dst| {
             let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| self.row(c, r));
             for (x, d) in dst.iter_mut().enumerate() {
                 let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
-                let mut most = f32::NEG_INFINITY;
+                let (mut most, mut next) = (f32::NEG_INFINITY, f32::NEG_INFINITY);
                 for (i, row) in rows.iter().enumerate() {
                     for (j, &cx) in cols.iter().enumerate() {
                         if (i, j) != (1, 1) {
-                            most = most.max(row[cx]);
+                            let v = row[cx];
+                            if v > most {
+                                next = most;
+                                most = v;
+                            } else {
+                                next = next.max(v);
+                            }
                         }
                     }
                 }
-                *d = rows[1][x].min(most);
+                *d = rows[1][x].min(if second { next } else { most });
             }
         })
     }

@@ -8,6 +8,7 @@ use candle_core::Tensor;
 
 /// Kernel prediction or direct prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
 pub enum Kind {
     /// Per-pixel softmax kernels applied to the noisy input (Bako et al. 2017).
     Kpcn,
@@ -57,6 +58,7 @@ pub struct Architecture {
 /// (BENCHMARKS.md, "Autoexposure and the shipped `balanced`"). The output is scaled back,
 /// so the choice never changes the output's units.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
 pub enum Exposure {
     /// As rendered.
     #[default]
@@ -117,6 +119,7 @@ impl Preprocessing {
 /// The values the specular branch's kernels filter (`kpcn:specular`). The network always
 /// sees log features, `s̃ = ln(1 + s)`, and its phase-1 loss is always taken on `s̃`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
 pub enum Specular {
     /// `s̃` itself, as in Bako et al. 2017; the output is `exp(ŝ) − 1`. Averaging in log
     /// space is biased dark (Jensen): a 5×5 box filter of `s̃` keeps 35–48 % of a sparse
@@ -195,6 +198,7 @@ impl Quality {
 /// The variance features a model was trained on (`kpcn:variances`): inference feeds it
 /// the same kind, whatever the file holds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
 pub enum Variances {
     /// The file's own (per-pixel sample variances or half buffers); estimated spatially
     /// only where the file has none.
@@ -221,6 +225,9 @@ pub enum Clamp {
     /// The full-resolution colour clamped, the coarser scales pooled from the unclamped
     /// colour: no energy lost at any scale the blend draws from.
     Fine,
+    /// As `Fine`, clamped to the second-brightest neighbour: pairs of fireflies go too,
+    /// while a line one pixel wide keeps all but its ends.
+    FinePairs,
 }
 
 impl Clamp {
@@ -231,6 +238,7 @@ impl Clamp {
             Clamp::Spread => "spread",
             Clamp::Coarse => "coarse",
             Clamp::Fine => "fine",
+            Clamp::FinePairs => "fine-pairs",
         }
     }
 }

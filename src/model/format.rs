@@ -72,6 +72,7 @@ impl Architecture {
                 Some("spread") => Clamp::Spread,
                 Some("coarse") => Clamp::Coarse,
                 Some("fine") => Clamp::Fine,
+                Some("fine-pairs") => Clamp::FinePairs,
                 Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
             },
             // Files from before the choice were trained on the files' variances.

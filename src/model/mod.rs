@@ -230,10 +230,10 @@ mod tests {
             let m = Model::resolve(q.name()).unwrap();
             // The presets see raw radiance; `balanced` was fine-tuned auto-exposed.
             let exposure = if q == Quality::Balanced { Exposure::Auto } else { Exposure::Raw };
-            // Trained with the preset's clamp, shipped with `fine` (`kpcn model clamp`).
+            // Trained with the preset's clamp, shipped with `fine-pairs` (`kpcn model clamp`).
             assert_eq!(
                 m.arch,
-                Architecture { exposure, clamp: Clamp::Fine, ..Architecture::ladder(q) },
+                Architecture { exposure, clamp: Clamp::FinePairs, ..Architecture::ladder(q) },
                 "{}",
                 q.name()
             );
@@ -265,6 +265,9 @@ mod tests {
         let (d, b) = (Model::embedded_default().unwrap(), Model::shipped_rung(Quality::Balanced).unwrap());
         assert_eq!((d.arch, &d.description), (b.arch, &b.description));
         let c = Model::resolve("compact").unwrap();
-        assert_eq!(c.arch, Architecture { exposure: Exposure::Auto, clamp: Clamp::Fine, ..Architecture::multiscale() });
+        assert_eq!(
+            c.arch,
+            Architecture { exposure: Exposure::Auto, clamp: Clamp::FinePairs, ..Architecture::multiscale() }
+        );
     }
 }

@@ -135,8 +135,9 @@ pub fn receptive_radius(a: &Architecture) -> usize {
 /// ([`Planes::clamp_to_neighbours`]) so that no full-resolution kernel can keep one.
 /// What the clamp removes is lost ([`Clamp::Hard`]), shared over the 3×3 neighbourhood
 /// ([`Clamp::Spread`]), averaged into the coarsest scale ([`Clamp::Coarse`]), or kept in
-/// every coarser scale, which pool the unclamped colour ([`Clamp::Fine`]): smooth regions
-/// draw from those, so there the energy stays without a speck. (Mid-means instead of
+/// every coarser scale, which pool the unclamped colour ([`Clamp::Fine`]; with
+/// [`Clamp::FinePairs`] clamped to the second-brightest neighbour): smooth regions draw
+/// from those, so there the energy stays without a speck. (Mid-means instead of
 /// averages also stop 2-pixel fireflies, but their downward bias on skewed low-sample
 /// noise cost more than they saved: measured on held-out simulator frames.)
 pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes> {
@@ -148,8 +149,10 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
             let excess = noisy.minus(&clamped);
             (clamped, Some(excess))
         }
-        Clamp::Fine => {
-            let mut colour = vec![noisy.clamp_to_neighbours()];
+        Clamp::Fine | Clamp::FinePairs => {
+            let clamped =
+                if clamp == Clamp::Fine { noisy.clamp_to_neighbours() } else { noisy.clamp_to_second_neighbour() };
+            let mut colour = vec![clamped];
             if levels > 1 {
                 colour.push(noisy.avg_pool2());
             }
@@ -329,15 +332,34 @@ mod tests {
         x[5 * w + 9] = 1e4 + 0.25;
         let sum = |p: &Planes| p.plane(0).iter().map(|&v| v as f64).sum::<f64>() * (w * h / (p.w * p.h)) as f64;
         let total = sum(&Planes::from_vec(3, w, h, x.clone()));
-        for clamp in [Clamp::Coarse, Clamp::Fine] {
+        for clamp in [Clamp::Coarse, Clamp::Fine, Clamp::FinePairs] {
             let pyramid = colour_pyramid(Planes::from_vec(3, w, h, x.clone()), 3, clamp);
             assert!(pyramid[0].data.iter().all(|&v| v == 0.25), "{clamp:?}: the speck is kept at full resolution");
             // The coarsest scale holds the whole energy (scaled by its pixels' area)…
             assert!((sum(&pyramid[2]) - total).abs() < 1e-6 * total, "{clamp:?}");
             // …and `fine` the middle one too, where `coarse` keeps it out.
             let middle = (sum(&pyramid[1]) - total).abs() < 1e-6 * total;
-            assert_eq!(middle, clamp == Clamp::Fine, "{clamp:?}");
+            assert_eq!(middle, clamp != Clamp::Coarse, "{clamp:?}");
         }
+    }
+
+    #[test]
+    fn pairs_of_fireflies_reach_full_resolution_only_past_the_single_clamp() {
+        // Two adjacent outliers: each is the other's brightest neighbour, so the single
+        // clamp keeps both; clamped to the second-brightest neighbour, neither stays. A
+        // line three pixels long keeps its middle either way.
+        let (w, h) = (12, 8);
+        let mut x = vec![0.25f32; 3 * w * h];
+        x[3 * w + 4] = 1e3;
+        x[3 * w + 5] = 1e3;
+        for c in 7..10 {
+            x[6 * w + c] = 2.0;
+        }
+        let level0 = |clamp| colour_pyramid(Planes::from_vec(3, w, h, x.clone()), 2, clamp).swap_remove(0);
+        let (single, pairs) = (level0(Clamp::Fine), level0(Clamp::FinePairs));
+        assert_eq!((single.data[3 * w + 4], single.data[3 * w + 5]), (1e3, 1e3));
+        assert_eq!((pairs.data[3 * w + 4], pairs.data[3 * w + 5]), (0.25, 0.25));
+        assert_eq!(pairs.data[6 * w + 8], 2.0, "a line's middle stays");
     }
 
     #[test]

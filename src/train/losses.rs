@@ -26,14 +26,15 @@ pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
 }
 
 /// The training loss.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Loss {
     /// Bako et al.: L1 on each branch's transformed target (irradiance, ln(1 + specular)),
     /// then L1 on the recomposed colour.
     #[default]
     L1,
-    /// [`relative_l2`] + [`tonemapped_l1`] on linear radiance: on the irradiance and the
-    /// specular radiance in phase 1, on the recomposed colour in phase 2.
+    /// Relative L2 (the prediction, gradient stopped, as its denominator: it seeks the
+    /// mean) plus L1 on tonemapped radiance, on the irradiance and the specular radiance in
+    /// phase 1, on the recomposed colour in phase 2.
     Relative,
 }
 
