@@ -74,7 +74,7 @@ pub enum Preset {
     /// (KPCN only; 93 kFLOP per pixel against `small`'s 319 k).
     Multiscale,
     /// The quality ladder's `fast` rung: U-Net with 5 pooling levels (8…48 channels),
-    /// 5×5 kernels at 5 scales, 188 px receptive radius.
+    /// 5×5 kernels at 5 scales (`kpcn model info fast` gives its reach).
     Fast,
     /// The ladder's `balanced` rung: 5 levels, 16…96 channels.
     Balanced,
@@ -146,7 +146,7 @@ pub fn describe(m: &Model) {
         kpcn::model::Exposure::Auto => "auto (each frame scaled to a key of 0.18, the output scaled back)",
     };
     println!("  exposure      {exposure}");
-    println!("  context       {} px feature halo, {} px kernel halo", a.feature_radius(), a.kernel_radius());
+    println!("  reach         {} px (how far each side an output pixel depends on the input)", a.reach());
     println!("  cost          {:.1} kFLOP per pixel (both branches)", a.flops_per_pixel() / 1e3);
     println!("  description   {}", m.description);
     if m.is_untrained() {

@@ -303,11 +303,10 @@ impl Denoiser {
         Ok(recompose(&albedo, &d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure))
     }
 
-    /// Context rows (or columns) a pixel's result depends on beyond the pixel itself:
-    /// the network's and the kernel's reach, plus one row each for the backward-difference
-    /// gradients and the 3×3 variance estimates.
+    /// Context rows (or columns) a pixel's result depends on beyond the pixel itself: the
+    /// model's reach ([`crate::model::Architecture::reach`]).
     pub fn halo(&self) -> usize {
-        self.model.arch.feature_radius().max(self.model.arch.kernel_radius()) + 2
+        self.model.arch.reach()
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.

@@ -344,6 +344,14 @@ impl Architecture {
         }
     }
 
+    /// The network's **reach**: how far (pixels, each side) an output pixel depends on the
+    /// input, the network's and the kernels' radius plus one pixel each for the
+    /// backward-difference gradients and the 3×3 variance estimates. Bands and tiles are
+    /// read with this much context; `kpcn model info` prints it.
+    pub fn reach(&self) -> usize {
+        self.feature_radius().max(self.kernel_radius()) + 2
+    }
+
     /// Context each side that a multi-scale region gets beyond the frame's edges (mirrored
     /// features). Networks that reach at most 48 px mirror their whole radius. Wider ones
     /// (the ladder's, 192 px) mirror only the real context a training patch gets around
