@@ -13,37 +13,32 @@
 #   KPCN_PROFILE=dev scripts/build-deb.sh   # the debug build (what the test uses)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+target=${CARGO_TARGET_DIR:-target}
+stage=$target/debian/stage
+rm -rf "$stage"
+# The library core (libkpcn.so.VERSION and its links, libkpcn.a, kpcn.h: scripts/install.sh
+# builds and strips them), moved to the multiarch folder with a .pc of its own.
+scripts/install.sh "$stage/usr"
+version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n1)
+abi=$(sed -n '/^\[package.metadata.kpcn\]/,/^\[/s/^abi = //p' Cargo.toml)
+arch=$(dpkg --print-architecture)
+triplet=$(dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || gcc -print-multiarch)
+lib=$stage/usr/lib/$triplet
+install -d "$lib/pkgconfig" "$lib/kpcn/oiio-plugins" "$stage/DEBIAN" "$stage/usr/bin" "$stage/usr/share/kpcn" \
+    "$stage/usr/share/man/man1" "$stage/usr/share/doc/kpcn" "$stage/usr/share/bash-completion/completions" \
+    "$stage/usr/share/zsh/vendor-completions" "$stage/usr/share/fish/vendor_completions.d"
+mv "$stage"/usr/lib/libkpcn* "$lib/"
+rm -r "$stage/usr/lib/pkgconfig"
+
+# The command, with the tools.
 profile=${KPCN_PROFILE:-release}
 case "$profile" in
     dev) dir=debug ;;
     *) dir=$profile ;;
 esac
-target=${CARGO_TARGET_DIR:-target}
-
-scripts/setup-debian.sh
-# The binary (with the tools), then the library core alone, which is what hosts link.
 cargo build --locked --quiet --profile "$profile" --bin kpcn
-cargo build --locked --quiet --profile "$profile" --lib --no-default-features
-
-version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n1)
-abi=$(sed -n '/^\[package.metadata.kpcn\]/,/^\[/s/^abi = //p' Cargo.toml)
-arch=$(dpkg --print-architecture)
-triplet=$(dpkg-architecture -qDEB_HOST_MULTIARCH 2>/dev/null || gcc -print-multiarch)
-stage=$target/debian/stage
-rm -rf "$stage"
-lib=$stage/usr/lib/$triplet
-install -d "$stage/DEBIAN" "$stage/usr/bin" "$stage/usr/include" "$lib/pkgconfig" "$lib/kpcn/oiio-plugins" \
-    "$stage/usr/share/kpcn" "$stage/usr/share/man/man1" "$stage/usr/share/doc/kpcn" \
-    "$stage/usr/share/bash-completion/completions" "$stage/usr/share/zsh/vendor-completions" \
-    "$stage/usr/share/fish/vendor_completions.d"
-
 install -m 755 "$target/$dir/kpcn" "$stage/usr/bin/kpcn"
-install -m 644 "$target/$dir/libkpcn.so" "$lib/libkpcn.so.$version"
-ln -s "libkpcn.so.$version" "$lib/libkpcn.so.$abi"
-ln -s "libkpcn.so.$abi" "$lib/libkpcn.so"
-install -m 644 "$target/$dir/libkpcn.a" "$lib/libkpcn.a"
-strip --strip-debug "$stage/usr/bin/kpcn" "$lib/libkpcn.so.$version" "$lib/libkpcn.a"
-install -m 644 include/kpcn.h "$stage/usr/include/kpcn.h"
+strip --strip-debug "$stage/usr/bin/kpcn"
 # A system library: on the default search path, so no rpath.
 cat > "$lib/pkgconfig/kpcn.pc" <<PC
 prefix=/usr

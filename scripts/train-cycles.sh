@@ -8,6 +8,7 @@
 #                                                   # (default model: balanced)
 #   KPCN_WORK=DIR                                   # work folder (default ./train-cycles/ft)
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M                # segment length (default 3000 + 500)
+#   KPCN_LR=R KPCN_LR2=R2                           # learning rates (default 5e-5, 2e-5)
 #   KPCN_MAX_FLOOR=F                                # leave out scenes whose reference is
 #                                                   # noisier than relMSE F (default 0.03)
 #
@@ -18,7 +19,8 @@
 #      taught as light), so that a corpus still rendering does not change the data under a
 #      resumed run; every 5th of its scenes by name is validation (`--holdout 5`);
 #   2. one segment from MODEL's weights: --loss relative --augment, batch 4, 96-px patches,
-#      lr 5e-5 / 2e-5 cosine, validation every 250 steps (the learning curve in log.csv).
+#      lr 5e-5 / 2e-5 cosine (KPCN_LR, KPCN_LR2), validation every 250 steps (the learning
+#      curve in log.csv).
 # Then benches/quality_corpus.sh WORK/data MODEL WORK/run/model.safetensors scores it against
 # MODEL on the same held-out scenes. Runs at low priority (nice 19).
 set -euo pipefail
@@ -73,6 +75,6 @@ start=(--init "$(
 [ -f "$run/checkpoint.safetensors" ] && start=(--resume)
 nice -n 19 "$kpcn" train --data "$data" -o "$run" "${start[@]}" --holdout 5 \
     --steps "${KPCN_STEPS:-3000}" --phase2-steps "${KPCN_PHASE2_STEPS:-500}" --batch 4 --patch 96 \
-    --lr 5e-5 --lr-phase2 2e-5 --schedule cosine --loss relative --augment \
+    --lr "${KPCN_LR:-5e-5}" --lr-phase2 "${KPCN_LR2:-2e-5}" --schedule cosine --loss relative --augment \
     --checkpoint-every 200 --validate-every 250 -q
 echo "$run/model.safetensors (log: $run/log.csv)"

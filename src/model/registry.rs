@@ -27,38 +27,22 @@ impl Shipped {
     }
 }
 
+/// A [`Shipped`] entry: its name, its file under `models/` (without `.safetensors`), what
+/// it is.
+macro_rules! shipped {
+    ($name:expr, $file:literal, $about:literal) => {
+        Shipped { name: $name, about: $about, bytes: include_bytes!(concat!("../../models/", $file, ".safetensors")) }
+    };
+}
+
 /// Every shipped model, the default first, then the rest of the quality ladder.
 pub static SHIPPED: [Shipped; 6] = [
-    Shipped {
-        name: Quality::Balanced.name(),
-        about: "the default: the quality ladder's middle rung, a 5-level U-Net",
-        bytes: include_bytes!("../../models/balanced.safetensors"),
-    },
-    Shipped {
-        name: Quality::Fast.name(),
-        about: "the ladder's narrowest rung: about 0.6× balanced's time",
-        bytes: include_bytes!("../../models/fast.safetensors"),
-    },
-    Shipped {
-        name: Quality::High.name(),
-        about: "the ladder's widest rung: about 1.6× balanced's time",
-        bytes: include_bytes!("../../models/high.safetensors"),
-    },
-    Shipped {
-        name: "spatial",
-        about: "balanced's recipe trained on spatial variance estimates: for files without variances (Blender's own)",
-        bytes: include_bytes!("../../models/spatial.safetensors"),
-    },
-    Shipped {
-        name: "compact",
-        about: "a 3-level U-Net: the shortest reach, so the least memory per band",
-        bytes: include_bytes!("../../models/compact.safetensors"),
-    },
-    Shipped {
-        name: "small-flat",
-        about: "the flat KPCN, every layer at full resolution: slower",
-        bytes: include_bytes!("../../models/small-flat.safetensors"),
-    },
+    shipped!(Quality::Balanced.name(), "balanced", "the default: the quality ladder's middle rung, a 5-level U-Net"),
+    shipped!(Quality::Fast.name(), "fast", "the ladder's narrowest rung: about 0.6× balanced's time"),
+    shipped!(Quality::High.name(), "high", "the ladder's widest rung: about 1.6× balanced's time"),
+    shipped!("spatial", "spatial", "compact's network on spatial variance estimates: files without variances"),
+    shipped!("compact", "compact", "a 3-level U-Net: the shortest reach, so the least memory per band"),
+    shipped!("small-flat", "small-flat", "the flat KPCN, every layer at full resolution: slower"),
 ];
 
 /// The model that runs when none is named; `default` is another name for it.
