@@ -6,7 +6,8 @@
 # relMSE with the worst 0.1 % and 1 % of pixels dropped, each also as a multiple of the
 # first model's. SPLIT=validation (default) scores the scenes training leaves out (every
 # 5th by name, as `kpcn train --holdout 5`); SPLIT=all scores every scene, for models
-# trained on none of them.
+# trained on none of them. CHANNELS=LAYER scores that layer of the output instead of
+# `denoised` (files as Blender writes them, corpus/raw/: CHANNELS=ViewLayer.Denoised).
 #
 #   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
@@ -28,7 +29,7 @@ m=0
 for model in "$@"; do
     while IFS=, read -r scene _ _ _ spp file reference _; do
         $kpcn denoise "$corpus/$file" -o "$work/den.exr" --model "$model" -q --threads 2
-        s=$($kpcn eval -r "$corpus/$reference" "$work/den.exr" --format csv | tail -1 | cut -d, -f3,6,7)
+        s=$($kpcn eval -r "$corpus/$reference" "$work/den.exr" --channels "${CHANNELS:-auto}" --format csv | tail -1 | cut -d, -f3,6,7)
         echo "$m $spp $scene ${s//,/ }" >>"$work/scores"
     done <<<"$rows"
     m=$((m + 1))
