@@ -5,8 +5,7 @@ use super::sequence::{Pattern, gaps, parse_frames};
 use anyhow::bail;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use kpcn::denoise::{Denoisers, FileJob, FileOptions, Options, Progress, check_output};
-use kpcn::io::layout::Layout;
+use kpcn::denoise::{Denoisers, FileOptions, FileRequest, Note, Options, Progress, ViewLayers, check_output};
 use kpcn::io::{FrameReader, WriteOptions};
 use kpcn::model::{Model, Quality, registry};
 use std::io::IsTerminal;
@@ -160,12 +159,16 @@ fn check_outputs(jobs: &[(PathBuf, PathBuf)], args: &DenoiseArgs) -> anyhow::Res
 /// Runs `kpcn denoise`.
 pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     let mut jobs = jobs(args)?;
-    if args.view_layer.as_deref() == Some("all") && args.separate {
-        return Err(Usage("--view-layer all adds each layer to a copy of the input: drop --separate".into()).into());
-    }
-    if args.view_layer.as_deref() == Some("all") && args.layer.is_some() {
-        return Err(Usage("--view-layer all names each result <ViewLayer>.Denoised: drop --layer".into()).into());
-    }
+    let request = FileRequest {
+        layout: args.layout.map(|l| l.0),
+        view_layers: ViewLayers::parse(args.view_layer.as_deref()),
+        layer: args.layer.clone(),
+        aovs: args.aovs,
+        separate: args.separate,
+        in_place: args.in_place,
+        write: WriteOptions { compression: args.compression.clone(), no_clobber: args.no_clobber },
+    };
+    request.check().map_err(Usage)?;
     if let Some(c) = args.compression.as_deref().filter(|c| !kpcn::io::COMPRESSIONS.contains(c)) {
         return Err(
             Usage(format!("--compression {c}: unknown — use one of {}", kpcn::io::COMPRESSIONS.join(", "))).into()
@@ -256,7 +259,7 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             }
             true
         };
-        match denoise_file(&denoiser, args, input, output, &step, &mut warned, &bar) {
+        match denoise_file(&denoiser, &request, args, (input, output), &step, &mut warned, &bar) {
             Ok(()) if farm => eprintln!(
                 "kpcn: frame {}/{} {} -> {} ({:.1} s)",
                 k + 1,
@@ -300,154 +303,57 @@ fn model_help() -> String {
     )
 }
 
+/// One file (each of its view layers) with the CLI's notes: warnings unless `--quiet`
+/// (the estimated variances once per run unless `--verbose`), the rest with `--verbose`.
 fn denoise_file(
     denoiser: &Denoisers,
+    request: &FileRequest,
     args: &DenoiseArgs,
-    input: &Path,
-    output: &Path,
-    progress: &dyn Fn(Progress) -> bool,
-    warned: &mut bool,
-    bar: &ProgressBar,
-) -> anyhow::Result<()> {
-    let layout = args.layout.map(|l| l.0);
-    let layers: Vec<Option<String>> = match args.view_layer.as_deref() {
-        Some("all") => {
-            let all = FileJob::open(input, layout)?.mapping().view_layers.clone();
-            if all.is_empty() { vec![None] } else { all.into_iter().map(Some).collect() }
-        }
-        Some(l) => vec![Some(l.to_string())],
-        None => vec![None],
-    };
-    for (i, layer) in layers.iter().enumerate() {
-        // Later view layers are added to the output written by the first, in place.
-        let source = if i == 0 { input } else { output };
-        denoise_view_layer(denoiser, args, source, output, layer.as_deref(), i == 0, progress, warned, bar)?;
-    }
-    Ok(())
-}
-
-/// One view layer (or the only input) of `input` into `output`; `first` is false when
-/// `output` already holds an earlier view layer's result.
-#[allow(clippy::too_many_arguments)]
-fn denoise_view_layer(
-    denoisers: &Denoisers,
-    args: &DenoiseArgs,
-    input: &Path,
-    output: &Path,
-    view_layer: Option<&str>,
-    first: bool,
+    (input, output): (&Path, &Path),
     progress: &dyn Fn(Progress) -> bool,
     warned: &mut bool,
     bar: &ProgressBar,
 ) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
-    let job = FileJob::open_view_layer(input, args.layout.map(|l| l.0), view_layer)?;
-    let mapping = job.mapping().clone();
-    let (denoiser, picked) = denoisers.pick(mapping.colour_variance_in_file());
-    if let (Some(which), true) = (picked, args.verbose) {
-        bar.suspend(|| println!("{}: --model auto: `{which}`", input.display()));
-    }
-    if let (Some(chosen), true) = (&mapping.view_layer, mapping.view_layers.len() > 1 && !args.quiet) {
-        bar.suspend(|| {
-            eprintln!(
-                "kpcn: note: {}: denoising view layer `{chosen}` of {} ({}); --view-layer NAME or all picks",
-                input.display(),
-                mapping.view_layers.len(),
-                mapping.view_layers.join(", ")
-            )
-        });
-    }
-    let layer = match (&args.layer, &mapping.view_layer) {
-        (Some(l), _) => l.clone(),
-        (None, Some(v)) => format!("{v}.Denoised"),
-        (None, None) => "denoised".into(),
-    };
-    let estimated: Vec<String> = mapping
-        .estimated_variances()
-        .iter()
-        .map(|e| format!("{} ({})", e.quantity.name(), e.variance_description()))
-        .collect();
-    if !estimated.is_empty() && !args.quiet && (args.verbose || !*warned) {
-        bar.suspend(|| {
-            eprintln!(
-                "kpcn: warning: {}: no variance for {} — estimated: {}",
-                input.display(),
-                estimated.len(),
-                estimated.join("; ")
-            )
-        });
-        *warned = true;
-    }
-    let opts = FileOptions {
-        layer,
-        aovs: args.aovs,
-        separate: args.separate,
-        // Later view layers are added to the output the first one wrote.
-        in_place: args.in_place || !first,
-        write: WriteOptions { compression: args.compression.clone(), no_clobber: args.no_clobber && first },
-        band_rows: None,
-    };
-    let (w, h) = job.size();
-    let band = job.band_rows(denoiser, &opts);
-    let report = job.run(denoiser, output, &opts, progress)?;
-    if !args.quiet {
-        // Said every time, not only with -v: hostile values change the image.
-        for (name, range, r) in &report.repairs {
-            let mut what = Vec::new();
-            if r.nonfinite > 0 {
-                what.push(format!("{} NaN/Inf samples set to 0", r.nonfinite));
-            }
-            if r.out_of_range > 0 {
-                what.push(format!("{} samples outside {range} clamped", r.out_of_range));
-            }
-            bar.suspend(|| eprintln!("kpcn: warning: {}: {name}: {}", input.display(), what.join(", ")));
+    let mut note = |n: Note| {
+        let say = match &n {
+            _ if args.quiet => false,
+            Note::EstimatedVariances { .. } => args.verbose || !std::mem::replace(warned, true),
+            Note::ViewLayerChosen { .. } => true,
+            n => n.is_warning() || args.verbose,
+        };
+        match (say, &n) {
+            (false, _) => {}
+            (true, Note::ViewLayerChosen { .. }) => bar.suspend(|| eprintln!("kpcn: note: {n}")),
+            (true, n) if n.is_warning() => bar.suspend(|| eprintln!("kpcn: warning: {n}")),
+            (true, n) => bar.suspend(|| println!("{n}")),
         }
-    }
-    let remainder = &report.remainder;
-    if remainder.pixels > 0 && !args.quiet {
-        if let Some(excess) = remainder.disagreement() {
-            bar.suspend(|| {
-                eprintln!(
-                    "kpcn: warning: {}: diffuse + specular exceed the beauty by {excess:.1} % in {} pixels — the passes disagree (written from different renders or samples?); the difference is kept in the output as it was",
-                    input.display(),
-                    remainder.pixels
-                )
-            });
-        } else if args.verbose {
+    };
+    let outcomes = request.run(denoiser, input, output, progress, &mut note)?;
+    if args.verbose {
+        for o in &outcomes {
+            let (w, h) = o.size;
+            let tile = o.tile.map_or("none".to_string(), |(tw, th)| format!("{tw}x{th}"));
+            let s = &o.report.stages;
             bar.suspend(|| {
                 println!(
-                    "{}: the beauty holds {:.2} % of its energy beyond diffuse + specular (emission, volumes, …) in {} pixels: carried to the output undenoised",
+                    "{} -> {} ({w}x{h}, layout {}, bands of {} rows, tiles of up to {tile} px, {:.2} s)",
                     input.display(),
-                    remainder.share(),
-                    remainder.pixels
+                    output.display(),
+                    o.layout.name(),
+                    o.band_rows,
+                    t.elapsed().as_secs_f64()
+                );
+                println!(
+                    "{}: read {:.2} s, features {:.2} s, network {:.2} s, write {:.2} s",
+                    input.display(),
+                    s.read.as_secs_f64(),
+                    s.features.as_secs_f64(),
+                    s.network.as_secs_f64(),
+                    s.write.as_secs_f64()
                 )
             });
         }
-    }
-    if args.verbose {
-        // A middle band's tiles: its context rows share the budget.
-        let (rows, total) = (band.min(h), (band + 2 * denoiser.halo()).min(h));
-        let c0 = (total - rows) / 2;
-        let tiles = denoiser.band_tiles(w, c0..c0 + rows, total);
-        let tile = tiles.first().map_or("none".to_string(), |t| format!("{}x{}", t.w, t.h));
-        bar.suspend(|| {
-            println!(
-                "{} -> {} ({w}x{h}, layout {}, bands of {band} rows, tiles of up to {tile} px, {:.2} s)",
-                input.display(),
-                output.display(),
-                Layout::name(mapping.layout),
-                t.elapsed().as_secs_f64()
-            );
-            let s = &report.stages;
-            println!(
-                "{}: read {:.2} s, features {:.2} s, network {:.2} s, write {:.2} s",
-                input.display(),
-                s.read.as_secs_f64(),
-                s.features.as_secs_f64(),
-                s.network.as_secs_f64(),
-                s.write.as_secs_f64()
-            )
-        });
     }
     Ok(())
 }

@@ -27,6 +27,14 @@ impl Denoisers {
         })
     }
 
+    /// `auto` ([`registry::AUTO`]) or one model by name (shipped, preset or file).
+    pub fn named(name: &str, options: Options) -> Result<Denoisers, DenoiseError> {
+        match name {
+            registry::AUTO => Denoisers::auto(options),
+            _ => Denoisers::one(Model::resolve(name)?, options),
+        }
+    }
+
     /// Whether this is `auto`.
     pub fn is_auto(&self) -> bool {
         self.without_variances.is_some()

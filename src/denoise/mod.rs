@@ -15,9 +15,11 @@ use std::borrow::Cow;
 
 mod choice;
 mod file;
+mod request;
 
 pub use choice::Denoisers;
 pub use file::{FileError, FileJob, FileOptions, FileReport, Stages, check_output};
+pub use request::{FileRequest, Note, Outcome, ViewLayers};
 
 /// How to run.
 #[derive(Debug, Clone)]

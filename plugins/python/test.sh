@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Tests the `kpcn` Python module as a user gets it: builds the wheel (dev profile, sharing
+# the test build's dependencies), installs it into a fresh virtual environment with only
+# the test tools (pytest, OpenEXR to read files, pinned), and runs tests/ against the
+# `kpcn` command (target/debug/kpcn, built here if missing).
+set -euo pipefail
+here=$(cd "$(dirname "$0")" && pwd)
+root=$(cd "$here/../.." && pwd)
+cargo build --locked --quiet --manifest-path "$root/Cargo.toml" --bin kpcn
+wheel=$("$here/build.sh" --profile dev)
+venv=$(mktemp -d -t kpcn-python-XXXXXX)
+trap 'rm -rf "$venv"' EXIT
+python3 -m venv "$venv"
+"$venv/bin/pip" install --quiet --disable-pip-version-check "$wheel" pytest==8.4.2 OpenEXR==3.5.3
+cd "$venv" # not the source tree: `import kpcn` must find the installed wheel
+KPCN_BIN="$root/target/debug/kpcn" "$venv/bin/python" -m pytest -q -p no:cacheprovider "$here/tests"
