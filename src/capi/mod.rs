@@ -22,7 +22,7 @@ pub use image::KpcnFormat;
 pub use status::{KpcnStatus, kpcn_last_error, kpcn_status_string};
 
 use crate::denoise::{Denoisers, FileJob, FileOptions, Options, Progress};
-use crate::io::layout::{KpcnInputs, Layout};
+use crate::io::layout::Layout;
 use crate::io::{NamedImages, WriteOptions};
 use crate::model::{Model, registry};
 use image::HostImage;
@@ -496,8 +496,7 @@ impl State {
         let (denoiser, _) = self.denoisers.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
         // The host's images are copied, then made the network's inputs: checked before
         // any of it is allocated, so that a frame too large fails instead of aborting.
-        let copies: usize = self.inputs.iter().map(|(_, i)| i.channels()).sum::<usize>() * w * h * 4;
-        crate::denoise::reserve_working_memory(copies + KpcnInputs::bytes(w, h) + denoiser.working_bytes(w, 0..h, h))?;
+        denoiser.reserve_for_host_frame(w, h, self.inputs.iter().map(|(_, i)| i.channels()).sum())?;
         let mut images = NamedImages::new(w, h);
         for (name, image) in &self.inputs {
             // A variance may come as 1 channel or 3 (averaged); the means take what they need.

@@ -2,7 +2,8 @@
 #   BLENDER_USER_SCRIPTS=S KPCN_LIBRARY=LIB blender -b --factory-startup --python render.py -- OUT
 # with the add-on at S/addons/kpcn_denoise.py. Renders the factory scene with Cycles at 4 spp
 # as a one-frame animation (the add-on denoises OUT/frame_0001.exr in place as it is
-# written), then runs "Denoise Last Render" on a plain render and copies its image to OUT/operator.exr.
+# written), then runs "Denoise Last Render" on a plain render and copies its image to OUT/operator.exr,
+# and checks that a library error reaches Blender's report.
 import os
 import sys
 
@@ -45,4 +46,13 @@ node.image.reload()
 node.layer = node.layer  # refreshes the outputs from the file
 outputs = [o.name for o in node.outputs]
 assert "Denoised" in outputs, outputs
+# A library error is Blender's own error report (bpy.ops raises it as RuntimeError).
+prefs = bpy.context.preferences.addons["kpcn_denoise"].preferences
+prefs.model = "/nonexistent/m.safetensors"
+try:
+    bpy.ops.kpcn.denoise_render()
+    raise AssertionError("a missing model file was not reported")
+except RuntimeError as e:
+    assert "kpcn:" in str(e) and "/nonexistent/m.safetensors" in str(e), e
+prefs.model = ""
 print("kpcn-test: done")

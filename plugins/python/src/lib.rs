@@ -129,46 +129,71 @@ fn run_detached<T: Send>(
     result.map_err(|_| raise(py, "Error", "kpcn panicked (a bug): please report it with the input".into()))
 }
 
-/// Reads a (H, W) or (H, W, C) float32/float16 array into `channels` planes (the first
-/// ones; a 1-channel image for `channels` = 1), checking its shape.
-fn planes(name: &str, array: &Bound<'_, PyAny>, allowed: &[usize]) -> PyResult<(usize, usize, Vec<Vec<f32>>)> {
-    let py = array.py();
-    let bad = |msg: String| raise(py, "InputError", format!("{name}: {msg}"));
-    let Ok(a) = array.cast::<numpy::PyUntypedArray>() else {
-        return Err(bad(format!("expected a numpy array of shape (H, W, C), got {}", array.get_type().name()?)));
-    };
-    let shape = a.shape().to_vec();
-    let (h, w, c) = match shape[..] {
-        [h, w] => (h, w, 1),
-        [h, w, c] => (h, w, c),
-        _ => return Err(bad(format!("expected shape (H, W) or (H, W, C), got {shape:?}"))),
-    };
-    let Some(&k) = allowed.iter().rev().find(|&&k| k <= c) else {
-        return Err(bad(format!("has {c} channels, needs {}", allowed[0])));
-    };
-    fn read<T: numpy::Element + Copy>(v: ArrayViewD<'_, T>, k: usize, f: impl Fn(T) -> f32) -> Vec<Vec<f32>> {
-        let v = match v.ndim() {
-            2 => v.insert_axis(Axis(2)),
-            _ => v,
+/// A host image: a (H, W) or (H, W, C) float32/float16 numpy array, checked.
+struct Image<'py> {
+    name: String,
+    array: Bound<'py, numpy::PyUntypedArray>,
+    height: usize,
+    width: usize,
+    /// Channels to read (the first ones).
+    channels: usize,
+}
+
+impl<'py> Image<'py> {
+    fn new(name: &str, array: &Bound<'py, PyAny>) -> PyResult<Image<'py>> {
+        let py = array.py();
+        let bad = |msg: String| raise(py, "InputError", format!("{name}: {msg}"));
+        let Some(allowed) = NamedImages::channels_of(name) else {
+            let known: Vec<&str> = kpcn::io::IMAGE_NAMES.iter().filter_map(|n| n.strip_suffix("Variance")).collect();
+            return Err(raise(
+                py,
+                "InputError",
+                format!("variances: no input `{}` — use keys among {}", name.trim_end_matches("Variance"), known.join(", ")),
+            ));
         };
-        (0..k)
-            .map(|i| {
-                let plane = v.index_axis(Axis(2), i).into_dimensionality::<Ix2>().expect("2-D");
-                plane.iter().map(|&x| f(x)).collect()
-            })
-            .collect()
+        let Ok(a) = array.cast::<numpy::PyUntypedArray>() else {
+            return Err(bad(format!("expected a numpy array of shape (H, W, C), got {}", array.get_type().name()?)));
+        };
+        let shape = a.shape().to_vec();
+        let (height, width, c) = match shape[..] {
+            [h, w] => (h, w, 1),
+            [h, w, c] => (h, w, c),
+            _ => return Err(bad(format!("expected shape (H, W) or (H, W, C), got {shape:?}"))),
+        };
+        let Some(&channels) = allowed.iter().rev().find(|&&k| k <= c) else {
+            return Err(bad(format!("has {c} channels, needs {}", allowed[0])));
+        };
+        let dtype = a.dtype();
+        if !dtype.is_equiv_to(&numpy::dtype::<f32>(py)) && !dtype.is_equiv_to(&numpy::dtype::<half::f16>(py)) {
+            return Err(bad(format!("dtype {dtype} is not float32 or float16 — convert it with .astype(numpy.float32)")));
+        }
+        Ok(Image { name: name.to_string(), array: a.clone(), height, width, channels })
     }
-    let dtype = a.dtype();
-    let data = if dtype.is_equiv_to(&numpy::dtype::<f32>(py)) {
-        let a = a.cast::<PyArrayDyn<f32>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
-        read(a.as_array(), k, |x| x)
-    } else if dtype.is_equiv_to(&numpy::dtype::<half::f16>(py)) {
-        let a = a.cast::<PyArrayDyn<half::f16>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
-        read(a.as_array(), k, half::f16::to_f32)
-    } else {
-        return Err(bad(format!("dtype {dtype} is not float32 or float16 — convert it with .astype(numpy.float32)")));
-    };
-    Ok((h, w, data))
+
+    /// The image's planes, read straight from the array whatever its strides.
+    fn planes(&self) -> PyResult<Vec<Vec<f32>>> {
+        let py = self.array.py();
+        let bad = |msg: String| raise(py, "InputError", format!("{}: {msg}", self.name));
+        fn read<T: numpy::Element + Copy>(v: ArrayViewD<'_, T>, k: usize, f: impl Fn(T) -> f32) -> Vec<Vec<f32>> {
+            let v = match v.ndim() {
+                2 => v.insert_axis(Axis(2)),
+                _ => v,
+            };
+            (0..k)
+                .map(|i| {
+                    let plane = v.index_axis(Axis(2), i).into_dimensionality::<Ix2>().expect("2-D");
+                    plane.iter().map(|&x| f(x)).collect()
+                })
+                .collect()
+        }
+        if let Ok(a) = self.array.cast::<PyArrayDyn<f32>>() {
+            let a = a.try_readonly().map_err(|e| bad(e.to_string()))?;
+            Ok(read(a.as_array(), self.channels, |x| x))
+        } else {
+            let a = self.array.cast::<PyArrayDyn<half::f16>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
+            Ok(read(a.as_array(), self.channels, half::f16::to_f32))
+        }
+    }
 }
 
 /// A loaded model (or `auto`'s two), reused across frames; safe to share between Python
@@ -265,28 +290,21 @@ impl Denoiser {
             None => Vec::new(),
         };
         given.extend(variances.iter().map(|(n, a)| (n.clone(), a)));
-        let mut images: Option<NamedImages> = None;
-        for (name, array) in &given {
-            let Some(allowed) = NamedImages::channels_of(name) else {
-                let known: Vec<&str> =
-                    kpcn::io::IMAGE_NAMES.iter().filter_map(|n| n.strip_suffix("Variance")).collect();
-                return Err(raise(
-                    py,
-                    "InputError",
-                    format!(
-                        "variances: no input `{}` — use keys among {}",
-                        name.trim_end_matches("Variance"),
-                        known.join(", ")
-                    ),
-                ));
-            };
-            let (h, w, data) = planes(name, array, allowed)?;
-            let images = images.get_or_insert_with(|| NamedImages::new(w, h));
-            images.insert(name, data).map_err(|e| io_err(py, e))?;
-        }
-        let images = images.ok_or_else(|| raise(py, "InputError", "no images given".into()))?;
-        let inputs = images.inputs().map_err(|e| io_err(py, e))?;
+        let images: Vec<Image<'py>> = given.iter().map(|(name, array)| Image::new(name, array)).collect::<PyResult<_>>()?;
+        let first = images.first().ok_or_else(|| raise(py, "InputError", "no images given".into()))?;
+        let (w, h) = (first.width, first.height);
         let (denoiser, _) = self.denoisers.pick(given.iter().any(|(n, _)| n == "colorVariance"));
+        // Checked before any copy, so that a frame too large is an error, not an abort.
+        denoiser
+            .reserve_for_host_frame(w, h, images.iter().map(|i| i.channels).sum())
+            .map_err(|e| denoise_err(py, e))?;
+        let mut named = NamedImages::new(w, h);
+        for image in &images {
+            named.insert(&image.name, image.planes()?).map_err(|e| io_err(py, e))?;
+        }
+        drop(images);
+        let inputs = named.inputs().map_err(|e| io_err(py, e))?;
+        drop(named);
         let result =
             run_detached(py, progress, |step| denoiser.denoise(&inputs, step))?.map_err(|e| denoise_err(py, e))?;
         let (w, h) = (result.width, result.height);

@@ -5,6 +5,8 @@ import os
 import pathlib
 import signal
 import subprocess
+import sys
+import textwrap
 import threading
 import ast
 import inspect
@@ -118,6 +120,30 @@ def test_hostile_arrays_give_clear_errors_or_finite_output(example, denoiser):
         denoiser.denoise([[1.0]], **a)
     with pytest.raises(kpcn.InputError, match="unknown model `nope`"):
         kpcn.Denoiser("nope")
+
+
+def test_a_frame_too_large_for_memory_is_an_error_not_an_abort():
+    script = textwrap.dedent("""
+        import resource, sys
+        import numpy as np
+        import kpcn
+        rgb, z = np.ones((2048, 2048, 3), np.float32), np.ones((2048, 2048), np.float32)
+        d = kpcn.Denoiser(threads=1)
+        vm = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmSize")) * 1024
+        old = resource.getrlimit(resource.RLIMIT_AS)
+        resource.setrlimit(resource.RLIMIT_AS, (vm + (256 << 20), old[1]))
+        try:
+            d.denoise(rgb, diffuse=rgb, albedo=rgb, normal=rgb, depth=z)
+            sys.exit("denoised a 4-Mpixel frame in 256 MB")
+        except kpcn.Error as e:
+            print(e)
+        resource.setrlimit(resource.RLIMIT_AS, old)
+        small = rgb[:64, :64]
+        assert np.isfinite(d.denoise(small, diffuse=small, albedo=small, normal=small, depth=z[:64, :64])).all()
+    """)
+    o = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert o.returncode == 0, o.stderr
+    assert "out of memory" in o.stdout and "max_memory" in o.stdout, o.stdout
 
 
 def test_file_errors_name_the_file_and_are_python_exceptions(tmp_path):
