@@ -66,7 +66,11 @@ impl From<crate::io::IoError> for Failure {
 
 impl From<crate::model::ModelError> for Failure {
     fn from(e: crate::model::ModelError) -> Self {
-        Failure::new(KpcnStatus::KpcnErrorModel, e.to_string())
+        let status = match e {
+            crate::model::ModelError::OutOfMemory(_) => KpcnStatus::KpcnErrorOutOfMemory,
+            _ => KpcnStatus::KpcnErrorModel,
+        };
+        Failure::new(status, e.to_string())
     }
 }
 
@@ -75,6 +79,7 @@ impl From<crate::denoise::DenoiseError> for Failure {
         use crate::denoise::DenoiseError;
         let status = match e {
             DenoiseError::Cancelled => KpcnStatus::KpcnErrorCancelled,
+            DenoiseError::Model(crate::model::ModelError::OutOfMemory(_)) => KpcnStatus::KpcnErrorOutOfMemory,
             DenoiseError::Model(_) => KpcnStatus::KpcnErrorModel,
             DenoiseError::Threads(_) | DenoiseError::Empty => KpcnStatus::KpcnErrorInvalidArgument,
             DenoiseError::OutOfMemory(_) => KpcnStatus::KpcnErrorOutOfMemory,

@@ -74,15 +74,13 @@ pub enum DenoiseError {
     OutOfMemory(usize),
 }
 
-/// Checks that `bytes` of working memory can be had, by asking the allocator for them
-/// once (and giving them back): under an address-space limit (`ulimit -v`, a farm's
-/// cgroup) a denoise that would run out half-way, which Rust answers with an abort, is
-/// refused before it starts with [`DenoiseError::OutOfMemory`].
+/// Checks that `bytes` of working memory can be had ([`kernel::buffers::can_allocate`]):
+/// a denoise that would run out half-way is refused before it starts with
+/// [`DenoiseError::OutOfMemory`].
 pub fn reserve_working_memory(bytes: usize) -> Result<(), DenoiseError> {
     // A quarter more: the allocator's own overhead and the small buffers around the big ones.
     let bytes = bytes.saturating_add(bytes / 4);
-    let mut probe: Vec<u8> = Vec::new();
-    probe.try_reserve_exact(bytes).map_err(|_| DenoiseError::OutOfMemory(bytes))
+    if kernel::buffers::can_allocate(bytes) { Ok(()) } else { Err(DenoiseError::OutOfMemory(bytes)) }
 }
 
 /// A denoised frame: colour and the two components it is the exact sum of.
@@ -130,6 +128,13 @@ impl Denoiser {
         let mut b = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("kpcn-{i}"));
         if let Some(n) = options.threads {
             b = b.num_threads(n.clamp(1, max_threads()));
+        }
+        // The weights are copied into plain arrays below: checked first, so that a process
+        // short of memory gets an error instead of an abort.
+        let weights: usize = model.arch.layer_shapes().iter().map(|&(o, i, k)| o * (i * k * k + 1)).sum();
+        let bytes = 2 * 2 * 4 * weights + crate::model::LOADING_HEADROOM;
+        if !kernel::buffers::can_allocate(bytes) {
+            return Err(ModelError::OutOfMemory(bytes).into());
         }
         let pool = b.build().map_err(|_| DenoiseError::Threads(options.threads.unwrap_or(0)))?;
         let pyramid = match model.arch.design {
@@ -226,10 +231,19 @@ impl Denoiser {
     /// Checks, before a host's frame is copied, that it can be denoised in memory: its
     /// `copied_planes` planes of `width`×`height` floats (the host's images read into the
     /// library's layout), the network's inputs and the working memory.
-    pub fn reserve_for_host_frame(&self, width: usize, height: usize, copied_planes: usize) -> Result<(), DenoiseError> {
+    pub fn reserve_for_host_frame(
+        &self,
+        width: usize,
+        height: usize,
+        copied_planes: usize,
+    ) -> Result<(), DenoiseError> {
         let copies = copied_planes.saturating_mul(width).saturating_mul(height).saturating_mul(4);
         reserve_working_memory(
-            copies.saturating_add(KpcnInputs::bytes(width, height)).saturating_add(self.working_bytes(width, 0..height, height)),
+            copies.saturating_add(KpcnInputs::bytes(width, height)).saturating_add(self.working_bytes(
+                width,
+                0..height,
+                height,
+            )),
         )
     }
 

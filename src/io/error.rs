@@ -174,10 +174,10 @@ pub enum IoError {
 
 impl IoError {
     /// The error of a failed OpenImageIO call on `path`: [`IoError::OutOfMemory`] when the
-    /// shim ran out of memory, else `or(reason)`.
+    /// shim (or the planes it decodes into) ran out of memory, else `or(reason)`.
     pub(crate) fn from_oiio(path: &std::path::Path, reason: String, or: impl FnOnce(String) -> IoError) -> IoError {
         if reason == super::oiio::OUT_OF_MEMORY {
-            IoError::OutOfMemory { path: path.into(), what: "in OpenImageIO".into() }
+            IoError::OutOfMemory { path: path.into(), what: "decoding or encoding its pixels".into() }
         } else {
             or(reason)
         }

@@ -465,7 +465,14 @@ fn read_planes(
     let (w, h) = (info.width, info.height);
     let (Some(&c0), Some(&last)) = (channels.first(), channels.last()) else { return Ok(Vec::new()) };
     let (c1, k) = (last + 1, last + 1 - c0);
-    let mut planes = vec![vec![0f32; w * (y1 - y0)]; channels.len()];
+    // Frame-sized: allocated fallibly, so that running out is an error, not an abort.
+    let mut planes = Vec::new();
+    for _ in channels {
+        let mut plane: Vec<f32> = Vec::new();
+        plane.try_reserve_exact(w * (y1 - y0)).map_err(|_| super::oiio::OUT_OF_MEMORY.to_string())?;
+        plane.resize(w * (y1 - y0), 0.0);
+        planes.push(plane);
+    }
     let th = info.tile_height.max(1);
     let band = th * super::rows_per_call(k).div_ceil(th);
     let mut scratch = Vec::new();

@@ -13,6 +13,14 @@ const KEEP: usize = 16 << 20;
 /// Idle buffers, oldest first.
 static POOL: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
 
+/// Whether `bytes` can be allocated now, by asking the allocator once and giving them back:
+/// under an address-space limit (`ulimit -v`, a farm's cgroup) work that would run out
+/// half-way, which Rust answers with an abort, is refused before it starts.
+pub fn can_allocate(bytes: usize) -> bool {
+    let mut probe: Vec<u8> = Vec::new();
+    probe.try_reserve_exact(bytes).is_ok()
+}
+
 /// An empty buffer with room for `n` values: a pooled one when one fits (at most twice the
 /// room needed), else a new one backed by huge pages where the kernel allows it.
 pub fn with_capacity(n: usize) -> Vec<f32> {

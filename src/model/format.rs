@@ -113,6 +113,11 @@ impl Model {
             safetensors::SafeTensors::read_metadata(bytes).map_err(|e| err(format!("not a safetensors file ({e})")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
         let arch = Architecture::from_metadata(&meta, origin)?;
+        // Checked first, so that a process short of memory gets an error, not an abort.
+        let needed = bytes.len().saturating_mul(4).saturating_add(super::LOADING_HEADROOM);
+        if !crate::kernel::buffers::can_allocate(needed) {
+            return Err(ModelError::OutOfMemory(needed));
+        }
         let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)?;
         let branch = |name: &str| -> Result<BranchWeights, ModelError> {
             let layers = arch

@@ -17,6 +17,10 @@ pub mod registry;
 pub use architecture::{Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, Specular, Variances};
 pub use format::{FORMAT_VERSION, model_file_with_clamp, write_atomically};
 
+/// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
+/// buffer pool), checked with the model's weights when it loads.
+pub const LOADING_HEADROOM: usize = 64 << 20;
+
 /// Errors loading, saving or running models.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -43,6 +47,9 @@ pub enum ModelError {
         presets = registry::PRESETS.map(|p| format!("`{p}`")).join(", ")
     )]
     UnknownPreset(String),
+    /// The process is short of memory before any frame: not even the model loads.
+    #[error("out of memory: loading the model needs about {} MB and the process cannot get it — raise its memory limit (ulimit -v, the farm's or container's): kpcn needs a few hundred MB for its libraries and model, plus --max-memory (the C ABI's max_memory_mb)", .0 >> 20)]
+    OutOfMemory(usize),
     /// A tensor computation failed.
     #[error("network evaluation failed: {0}")]
     Candle(#[from] candle_core::Error),

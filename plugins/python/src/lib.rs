@@ -148,7 +148,11 @@ impl<'py> Image<'py> {
             return Err(raise(
                 py,
                 "InputError",
-                format!("variances: no input `{}` — use keys among {}", name.trim_end_matches("Variance"), known.join(", ")),
+                format!(
+                    "variances: no input `{}` — use keys among {}",
+                    name.trim_end_matches("Variance"),
+                    known.join(", ")
+                ),
             ));
         };
         let Ok(a) = array.cast::<numpy::PyUntypedArray>() else {
@@ -165,7 +169,9 @@ impl<'py> Image<'py> {
         };
         let dtype = a.dtype();
         if !dtype.is_equiv_to(&numpy::dtype::<f32>(py)) && !dtype.is_equiv_to(&numpy::dtype::<half::f16>(py)) {
-            return Err(bad(format!("dtype {dtype} is not float32 or float16 — convert it with .astype(numpy.float32)")));
+            return Err(bad(format!(
+                "dtype {dtype} is not float32 or float16 — convert it with .astype(numpy.float32)"
+            )));
         }
         Ok(Image { name: name.to_string(), array: a.clone(), height, width, channels })
     }
@@ -290,7 +296,8 @@ impl Denoiser {
             None => Vec::new(),
         };
         given.extend(variances.iter().map(|(n, a)| (n.clone(), a)));
-        let images: Vec<Image<'py>> = given.iter().map(|(name, array)| Image::new(name, array)).collect::<PyResult<_>>()?;
+        let images: Vec<Image<'py>> =
+            given.iter().map(|(name, array)| Image::new(name, array)).collect::<PyResult<_>>()?;
         let first = images.first().ok_or_else(|| raise(py, "InputError", "no images given".into()))?;
         let (w, h) = (first.width, first.height);
         let (denoiser, _) = self.denoisers.pick(given.iter().any(|(n, _)| n == "colorVariance"));
