@@ -109,12 +109,12 @@ impl HostImage {
         self.ptr.wrapping_offset(offset + (c * self.format.sample_bytes()) as isize)
     }
 
-    /// Its first `channels` channels as packed planes.
-    pub fn read(&self, channels: usize) -> Vec<Vec<f32>> {
+    /// Rows `rows` of its first `channels` channels as packed planes.
+    pub fn read_rows(&self, channels: usize, rows: std::ops::Range<usize>) -> Vec<Vec<f32>> {
         (0..channels.min(self.format.channels()))
             .map(|c| {
-                let mut plane = Vec::with_capacity(self.width * self.height);
-                for y in 0..self.height {
+                let mut plane = Vec::with_capacity(self.width * rows.len());
+                for y in rows.clone() {
                     for x in 0..self.width {
                         let p = self.at(x, y, c);
                         // SAFETY: `p` lies inside the host's image (see `new`); unaligned reads
@@ -134,10 +134,15 @@ impl HostImage {
 
     /// Writes RGB planes into its first three channels (or the first for a 1-channel image).
     pub fn write(&self, rgb: &[Vec<f32>; 3]) {
+        self.write_rows(rgb, 0..self.height);
+    }
+
+    /// Writes RGB planes of rows `rows` (packed from the first of them) into those rows.
+    pub fn write_rows(&self, rgb: &[Vec<f32>; 3], rows: std::ops::Range<usize>) {
         for (c, plane) in rgb.iter().enumerate().take(self.format.channels()) {
-            for y in 0..self.height {
+            for y in rows.clone() {
                 for x in 0..self.width {
-                    let (p, v) = (self.at(x, y, c), plane[y * self.width + x]);
+                    let (p, v) = (self.at(x, y, c), plane[(y - rows.start) * self.width + x]);
                     // SAFETY: as in `read`.
                     unsafe {
                         match self.format.sample_bytes() {
@@ -170,7 +175,7 @@ mod tests {
         let mut buf = [0u8; 2 * 3];
         let img = HostImage::new("x", buf.as_mut_ptr(), KpcnFormat::KpcnFormatHalf3 as i32, 1, 1, 0, 0).unwrap();
         img.write(&[vec![1e6], vec![-7e4], vec![2.0]]);
-        assert_eq!(img.read(3), vec![vec![65504.0], vec![-65504.0], vec![2.0]]);
+        assert_eq!(img.read_rows(3, 0..1), vec![vec![65504.0], vec![-65504.0], vec![2.0]]);
     }
 
     #[test]
@@ -181,7 +186,8 @@ mod tests {
         let img = HostImage::new("x", top, KpcnFormat::KpcnFormatHalf4 as i32, 2, 2, 8, -18).unwrap();
         let rgb = [vec![1.0, 2.0, 3.0, 4.0], vec![0.5; 4], vec![-1.0; 4]];
         img.write(&rgb);
-        assert_eq!(img.read(3), rgb.to_vec());
+        assert_eq!(img.read_rows(3, 0..2), rgb.to_vec());
+        assert_eq!(img.read_rows(3, 1..2), rgb.map(|p| p[2..].to_vec()).to_vec(), "a band of rows");
         // The top row lies at the end of the buffer.
         assert_eq!(f16::from_bits(u16::from_le_bytes([buf[18], buf[19]])).to_f32(), 1.0);
         assert_eq!(f16::from_bits(u16::from_le_bytes([buf[0], buf[1]])).to_f32(), 3.0);

@@ -21,8 +21,8 @@ mod status;
 pub use image::KpcnFormat;
 pub use status::{KpcnStatus, kpcn_last_error, kpcn_status_string};
 
-use crate::denoise::{Denoisers, FileJob, FileOptions, Options, Progress};
-use crate::io::layout::Layout;
+use crate::denoise::{Bands, Denoisers, FileJob, FileOptions, Options, Progress};
+use crate::io::layout::{KpcnInputs, Layout};
 use crate::io::{NamedImages, WriteOptions};
 use crate::model::{Model, registry};
 use image::HostImage;
@@ -494,25 +494,44 @@ impl State {
             )));
         }
         let (denoiser, _) = self.denoisers.pick(self.inputs.iter().any(|(n, _)| n == "colorVariance"));
-        // The host's images are copied, then made the network's inputs: checked before
-        // any of it is allocated, so that a frame too large fails instead of aborting.
-        denoiser.reserve_for_host_frame(w, h, self.inputs.iter().map(|(_, i)| i.channels()).sum())?;
-        let mut images = NamedImages::new(w, h);
-        for (name, image) in &self.inputs {
-            // A variance may come as 1 channel or 3 (averaged); the means take what they need.
-            let wanted = NamedImages::channels_of(name)
-                .map_or(1, |c| *c.iter().rev().find(|&&k| k <= image.channels()).unwrap_or(&c[0]));
-            images.insert(name, image.read(wanted))?;
-        }
-        let inputs = images.inputs()?;
-        let result = denoiser.denoise(&inputs, &self.progress())?;
-        for (name, image) in &self.outputs {
-            let planes = match name.as_str() {
-                "outputDiffuse" => &result.diffuse,
-                "outputSpecular" => &result.specular,
-                _ => &result.color,
-            };
-            image.write(planes);
+        // Streamed in bands, as files are: the host's images are copied a band at a time
+        // (with its context rows), never whole. The results are held until the end so that
+        // a failure or cancel leaves the outputs untouched: 3 floats per pixel and output.
+        let bands = Bands::new(denoiser, w, h, None);
+        let copied: usize = self.inputs.iter().map(|(_, i)| i.channels()).sum();
+        bands.reserve(denoiser, copied, self.outputs.len() * 3 * w * h * 4)?;
+        let part = |name: &str| -> fn(&crate::denoise::Denoised) -> &[Vec<f32>; 3] {
+            match name {
+                "outputDiffuse" => |d| &d.diffuse,
+                "outputSpecular" => |d| &d.specular,
+                _ => |d| &d.color,
+            }
+        };
+        let mut results: Vec<[Vec<f32>; 3]> =
+            self.outputs.iter().map(|_| std::array::from_fn(|_| vec![0f32; w * h])).collect();
+        let inputs = &self.inputs;
+        let mut read = |rows: std::ops::Range<usize>| -> Result<KpcnInputs, Failure> {
+            let mut images = NamedImages::new(w, rows.len());
+            for (name, image) in inputs {
+                // A variance may come as 1 channel or 3 (averaged); the means take what they need.
+                let wanted = NamedImages::channels_of(name)
+                    .map_or(1, |c| *c.iter().rev().find(|&&k| k <= image.channels()).unwrap_or(&c[0]));
+                images.insert(name, image.read_rows(wanted, rows.clone()))?;
+            }
+            Ok(images.inputs()?)
+        };
+        let outputs = &self.outputs;
+        let mut write = |rows: std::ops::Range<usize>, d: crate::denoise::Denoised| -> Result<(), Failure> {
+            for ((name, _), result) in outputs.iter().zip(&mut results) {
+                for (r, p) in result.iter_mut().zip(part(name)(&d)) {
+                    r[rows.start * w..rows.end * w].copy_from_slice(p);
+                }
+            }
+            Ok(())
+        };
+        denoiser.denoise_streamed(&bands, &mut read, &mut write, &self.progress())?;
+        for ((_, image), result) in self.outputs.iter().zip(&results) {
+            image.write(result);
         }
         Ok(())
     }

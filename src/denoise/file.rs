@@ -6,18 +6,11 @@
 //! its inner rows are denoised and written straight after a copy of the input channels.
 //! The result equals denoising the whole frame at once (tested bit for bit).
 
-use super::{DenoiseError, Denoised, Denoiser, Progress};
+use super::{Bands, DenoiseError, Denoised, Denoiser, Progress};
 use crate::features::{self, FrameStats};
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
 use std::path::{Path, PathBuf};
-
-/// Working floats per pixel of a band: every channel of a layered EXR (≈40), the
-/// network inputs (21) and the features (25), with room to spare, counted twice so that
-/// a band takes about half the memory budget and the tiles in flight the rest (a 4K frame
-/// of 41 channels peaked at 1.02 GB with the whole budget per band, 0.88 GB with half,
-/// in the same time).
-const BAND_FLOATS_PER_PIXEL: usize = 240;
 
 /// What to write.
 #[derive(Debug, Clone)]
@@ -215,19 +208,10 @@ impl FileJob {
         (self.reader.header().width(), self.reader.header().height())
     }
 
-    /// Rows per band for this frame and denoiser.
-    pub fn band_rows(&self, denoiser: &Denoiser, opts: &FileOptions) -> usize {
+    /// The bands this frame is streamed in.
+    pub fn bands(&self, denoiser: &Denoiser, opts: &FileOptions) -> Bands {
         let (w, h) = self.size();
-        let budget = denoiser.options.max_memory_mb << 20;
-        let by_budget = budget / (w.max(1) * 4 * BAND_FLOATS_PER_PIXEL);
-        // A band thinner than its context rows would spend most of its work on them (the
-        // ladder's 194 rows each side at 4K: 5× the frame's work in 96-row bands): then a
-        // band is twice the context, over budget rather than several times slower.
-        let halo = denoiser.halo();
-        let by_budget = if by_budget < halo { 2 * halo } else { by_budget.max(16) };
-        // Bands start on the network's pooling grid.
-        let rows = opts.band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
-        rows.min(h.max(1))
+        Bands::new(denoiser, w, h, opts.band_rows)
     }
 
     /// Denoises into `output` (atomically: nothing appears there on failure or cancel).
@@ -246,18 +230,11 @@ impl FileJob {
         if w == 0 || h == 0 {
             return Err(FileError::Denoise { path, cause: DenoiseError::Empty });
         }
-        let band = self.band_rows(denoiser, opts);
-        let bands: Vec<(usize, usize)> = (0..h).step_by(band).map(|a| (a, (a + band).min(h))).collect();
-        let halo = denoiser.halo();
+        let bands = self.bands(denoiser, opts);
+        let band = bands.rows();
         // The largest band's working memory (context rows included), checked before the
         // output exists.
-        let with_context = |&(a, b): &(usize, usize)| (a.saturating_sub(halo), (b + halo).min(h));
-        if let Some(&(a, b)) = bands.iter().max_by_key(|ab| with_context(ab).1 - with_context(ab).0) {
-            let (c0, c1) = with_context(&(a, b));
-            let inputs = crate::io::layout::KpcnInputs::bytes(w, c1 - c0);
-            super::reserve_working_memory(inputs + denoiser.working_bytes(w, a - c0..b - c0, c1 - c0))
-                .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
-        }
+        bands.reserve(denoiser, 0, 0).map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
         let needed = self.mapping.channels();
         let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
 
@@ -312,11 +289,7 @@ impl FileJob {
             .collect();
         let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
 
-        let tiles_in = |a: usize, b: usize| {
-            let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
-            denoiser.band_tiles(w, a - c0..b - c0, c1 - c0).len()
-        };
-        let total: usize = bands.iter().map(|&(a, b)| tiles_in(a, b)).sum();
+        let total = bands.total_tiles(denoiser);
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
         let mut report = FileReport::default();
@@ -333,14 +306,16 @@ impl FileJob {
                     Src::New(_) => None,
                 })
                 .collect();
-            for &(a, b) in &bands {
+            for band in bands.iter() {
+                let (a, b) = (band.start, band.end);
                 if p != beauty_out {
                     let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
                     let planes: Vec<&[f32]> = copies.iter().map(|n| fb.channel(n).expect("read above")).collect();
                     timed(&mut stages.write, || writer.write_band(&planes, b - a))?;
                     continue;
                 }
-                let (c0, c1) = (a.saturating_sub(halo), (b + halo).min(h));
+                let context = bands.with_context(band);
+                let (c0, c1) = (context.start, context.end);
                 // The band with its context rows holds only the network's inputs (a wide
                 // network's context is most of the band), and only until they are mapped;
                 // the copied channels are read for the inner rows after the network ran.
@@ -366,7 +341,7 @@ impl FileJob {
                     .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
                 d.carry(&remainder);
                 drop(f);
-                done += tiles_in(a, b);
+                done += bands.tiles_in(denoiser, band);
                 let new = new_planes(&d, opts.aovs);
                 let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
                 let planes: Vec<&[f32]> = channels

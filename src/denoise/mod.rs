@@ -13,10 +13,12 @@ use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
 use std::borrow::Cow;
 
+mod bands;
 mod choice;
 mod file;
 mod request;
 
+pub use bands::Bands;
 pub use choice::Denoisers;
 pub use file::{FileError, FileJob, FileOptions, FileReport, Stages, check_output};
 pub use request::{FileRequest, Note, Outcome, ViewLayers};

@@ -266,7 +266,7 @@ impl FileRequest {
         }
         let opts = self.file_options(mapping.view_layer.as_deref(), first);
         let (w, h) = job.size();
-        let band = job.band_rows(denoiser, &opts);
+        let band = job.bands(denoiser, &opts).rows();
         let report = job.run(denoiser, output, &opts, progress)?;
         for (name, range, r) in &report.repairs {
             let mut what = Vec::new();

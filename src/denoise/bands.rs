@@ -1,0 +1,202 @@
+//! A frame streamed in bands of rows, so that memory stays bounded whatever its size: each
+//! band is read with [`Denoiser::halo`] context rows above and below and preprocessed with
+//! the whole frame's statistics, and only its inner rows are denoised. The result equals
+//! denoising the whole frame at once, bit for bit. Files ([`super::FileJob`]) and host
+//! buffers (the C ABI, the Python module) are streamed alike.
+
+use super::{DenoiseError, Denoised, Denoiser, Progress, reserve_working_memory};
+use crate::features::{self, FrameStats};
+use crate::io::layout::KpcnInputs;
+use std::borrow::Cow;
+use std::ops::Range;
+
+/// Working floats per pixel of a band: every channel of a layered EXR (≈40), the
+/// network inputs (21) and the features (25), with room to spare, counted twice so that
+/// a band takes about half the memory budget and the tiles in flight the rest (a 4K frame
+/// of 41 channels peaked at 1.02 GB with the whole budget per band, 0.88 GB with half,
+/// in the same time).
+const BAND_FLOATS_PER_PIXEL: usize = 240;
+
+/// The bands of a `width`×`height` frame for one denoiser.
+#[derive(Debug, Clone)]
+pub struct Bands {
+    bands: Vec<Range<usize>>,
+    halo: usize,
+    width: usize,
+    height: usize,
+}
+
+impl Bands {
+    /// Bands of `band_rows` rows (testing), or as many as half of `denoiser`'s memory
+    /// budget holds; never thinner than twice the context rows, and starting on the
+    /// network's pooling grid.
+    pub fn new(denoiser: &Denoiser, width: usize, height: usize, band_rows: Option<usize>) -> Bands {
+        let budget = denoiser.options.max_memory_mb << 20;
+        let by_budget = budget / (width.max(1) * 4 * BAND_FLOATS_PER_PIXEL);
+        // A band thinner than its context rows would spend most of its work on them (the
+        // ladder's 194 rows each side at 4K: 5× the frame's work in 96-row bands): then a
+        // band is twice the context, over budget rather than several times slower.
+        let halo = denoiser.halo();
+        let by_budget = if by_budget < halo { 2 * halo } else { by_budget.max(16) };
+        let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
+        let rows = rows.min(height.max(1));
+        let bands = (0..height).step_by(rows).map(|a| a..(a + rows).min(height)).collect();
+        Bands { bands, halo, width, height }
+    }
+
+    /// Rows per band (the last may be shorter).
+    pub fn rows(&self) -> usize {
+        self.bands.first().map_or(0, |b| b.len())
+    }
+
+    /// The bands, top to bottom.
+    pub fn iter(&self) -> impl Iterator<Item = &Range<usize>> {
+        self.bands.iter()
+    }
+
+    /// How many.
+    pub fn len(&self) -> usize {
+        self.bands.len()
+    }
+
+    /// Whether the frame has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.bands.is_empty()
+    }
+
+    /// `band` with its context rows (clipped to the frame).
+    pub fn with_context(&self, band: &Range<usize>) -> Range<usize> {
+        band.start.saturating_sub(self.halo)..(band.end + self.halo).min(self.height)
+    }
+
+    /// `band`'s rows within [`Bands::with_context`].
+    pub fn inner(&self, band: &Range<usize>) -> Range<usize> {
+        let c0 = self.with_context(band).start;
+        band.start - c0..band.end - c0
+    }
+
+    /// Tiles of `band`.
+    pub fn tiles_in(&self, denoiser: &Denoiser, band: &Range<usize>) -> usize {
+        denoiser.band_tiles(self.width, self.inner(band), self.with_context(band).len()).len()
+    }
+
+    /// Tiles of the frame.
+    pub fn total_tiles(&self, denoiser: &Denoiser) -> usize {
+        self.iter().map(|b| self.tiles_in(denoiser, b)).sum()
+    }
+
+    /// Checks, before any work, that the largest band can be had: its network inputs and
+    /// working memory, `floats_per_pixel` more of the caller's own over its rows with
+    /// context, and `fixed` bytes.
+    pub fn reserve(&self, denoiser: &Denoiser, floats_per_pixel: usize, fixed: usize) -> Result<(), DenoiseError> {
+        let Some(band) = self.iter().max_by_key(|b| self.with_context(b).len()) else { return Ok(()) };
+        let rows = self.with_context(band).len();
+        let bytes = KpcnInputs::bytes(self.width, rows)
+            .saturating_add(denoiser.working_bytes(self.width, self.inner(band), rows))
+            .saturating_add(floats_per_pixel.saturating_mul(self.width).saturating_mul(rows).saturating_mul(4))
+            .saturating_add(fixed);
+        reserve_working_memory(bytes)
+    }
+}
+
+impl Denoiser {
+    /// Denoises a frame read band by band: `read(rows)` gives the network's inputs for
+    /// those rows (each band's rows with context, and with several bands each band once
+    /// more for the whole frame's statistics); each band's result goes to
+    /// `write(rows, denoised)`. `progress` counts tiles over the frame; `false` cancels.
+    pub fn denoise_streamed<E: From<DenoiseError>>(
+        &self,
+        bands: &Bands,
+        read: &mut dyn FnMut(Range<usize>) -> Result<KpcnInputs, E>,
+        write: &mut dyn FnMut(Range<usize>, Denoised) -> Result<(), E>,
+        progress: &dyn Fn(Progress) -> bool,
+    ) -> Result<(), E> {
+        if bands.is_empty() || bands.width == 0 {
+            return Err(DenoiseError::Empty.into());
+        }
+        let whole = if bands.len() == 1 {
+            None
+        } else {
+            let (mut max_depth, mut meter) = (0f32, features::ExposureMeter::new(bands.width));
+            for band in bands.iter() {
+                let inputs = read(band.clone())?;
+                max_depth = max_depth.max(features::max_depth(&inputs.depth));
+                meter.add_rows(inputs.color.each_ref().map(Vec::as_slice));
+            }
+            Some(FrameStats { max_depth, exposure: if self.auto_exposed() { meter.exposure() } else { 1.0 } })
+        };
+        let (total, mut done) = (bands.total_tiles(self), 0);
+        for band in bands.iter() {
+            let inner = bands.inner(band);
+            let inputs = read(bands.with_context(band))?;
+            let remainder = inputs.remainder(inner.clone());
+            let f = self.features(Cow::Owned(inputs), whole);
+            let step = |p: Progress| progress(Progress { done: done + p.done, total });
+            let mut d = self.denoise_band(&f, inner, &step)?;
+            drop(f);
+            d.carry(&remainder);
+            done += bands.tiles_in(self, band);
+            write(band.clone(), d)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::denoise::Options;
+    use crate::io::{FrameBuffers, NamedImages};
+    use crate::model::Model;
+
+    /// Rows `rows` of the example frame's passes as named host images (`variances`: with
+    /// the file's variances, else estimated), made the network's inputs.
+    fn host_rows(fb: &FrameBuffers, rows: Range<usize>, variances: bool) -> KpcnInputs {
+        let w = fb.width();
+        let mut images = NamedImages::new(w, rows.len());
+        let rgb = |p: &str| ["R", "G", "B"].map(|c| if p.is_empty() { c.to_string() } else { format!("{p}.{c}") });
+        let mut named: Vec<(&str, Vec<String>)> = vec![
+            ("color", rgb("").to_vec()),
+            ("diffuse", rgb("diffuse").to_vec()),
+            ("albedo", rgb("albedo").to_vec()),
+            ("normal", rgb("normal").to_vec()),
+            ("depth", vec!["depth.Z".into()]),
+        ];
+        if variances {
+            for v in ["color", "diffuse", "specular", "albedo", "normal", "depth"] {
+                named.push((Box::leak(format!("{v}Variance").into_boxed_str()), vec![format!("{v}Variance.Z")]));
+            }
+        }
+        for (name, channels) in named {
+            let planes =
+                channels.iter().map(|c| fb.channel(c).unwrap()[rows.start * w..rows.end * w].to_vec()).collect();
+            images.insert(name, planes).unwrap();
+        }
+        images.inputs().unwrap()
+    }
+
+    #[test]
+    fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
+        let fb = FrameBuffers::read(std::path::Path::new("examples/data/spheres-crop-00016spp.exr")).unwrap();
+        let (w, h) = (fb.width(), fb.height());
+        for (model, variances) in [("spatial", false), ("balanced", true), ("compact", false)] {
+            let d = Denoiser::new(Model::resolve(model).unwrap(), Options::default()).unwrap();
+            let whole = d.denoise(&host_rows(&fb, 0..h, variances), &|_| true).unwrap();
+            let bands = Bands::new(&d, w, h, Some(16));
+            assert!(bands.len() > 1, "{model}: several bands");
+            let mut got = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
+            let mut read = |rows: Range<usize>| Ok::<_, DenoiseError>(host_rows(&fb, rows, variances));
+            let mut write = |rows: Range<usize>, r: Denoised| {
+                for (g, p) in got.iter_mut().zip(&r.color) {
+                    g[rows.start * w..rows.end * w].copy_from_slice(p);
+                }
+                Ok(())
+            };
+            d.denoise_streamed(&bands, &mut read, &mut write, &|_| true).unwrap();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            for c in 0..3 {
+                assert!(bits(&got[c]) == bits(&whole.color[c]), "{model}: channel {c} differs");
+            }
+        }
+    }
+}
