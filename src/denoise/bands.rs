@@ -194,8 +194,8 @@ mod tests {
             };
             d.denoise_streamed(&bands, &mut read, &mut write, &|_| true).unwrap();
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            for c in 0..3 {
-                assert!(bits(&got[c]) == bits(&whole.color[c]), "{model}: channel {c} differs");
+            for (c, (g, w)) in got.iter().zip(&whole.color).enumerate() {
+                assert!(bits(g) == bits(w), "{model}: channel {c} differs");
             }
         }
     }
