@@ -129,7 +129,9 @@ typedef struct KpcnOptions {
    */
   uint32_t threads;
   /**
-   * Working-memory budget in MB for one tile's network; 0 = the default (512).
+   * Working-memory budget in MB, as `kpcn denoise --max-memory`: `kpcn_execute` reads the
+   * host's images in bands of rows within it (and holds 12 bytes per pixel and output
+   * until the end); 0 = the default (512).
    */
   uint32_t max_memory_mb;
   /**

@@ -50,7 +50,9 @@ pub struct KpcnOptions {
     pub struct_size: usize,
     /// Worker threads of this denoiser's own pool; 0 = one per core.
     pub threads: u32,
-    /// Working-memory budget in MB for one tile's network; 0 = the default (512).
+    /// Working-memory budget in MB, as `kpcn denoise --max-memory`: `kpcn_execute` reads the
+    /// host's images in bands of rows within it (and holds 12 bytes per pixel and output
+    /// until the end); 0 = the default (512).
     pub max_memory_mb: u32,
     /// A model by name, or NULL for `"default"`: `"auto"`, which picks per frame as
     /// `kpcn denoise` does (the default model when the frame has a colour variance, a
