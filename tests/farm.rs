@@ -104,9 +104,14 @@ fn a_killed_task_reruns_only_what_is_missing_and_a_bad_frame_fails_its_task() {
         };
         paths.filter(finished).collect()
     };
+    // Frames being written: kpcn's hidden temporary files. Killed while one is, the task
+    // fails mid-frame rather than between frames or chunks.
+    let writing = |d: &Path| {
+        std::fs::read_dir(d.join("out")).unwrap().any(|e| e.unwrap().file_name().to_string_lossy().starts_with('.'))
+    };
     let start = Instant::now();
-    while outputs(d).len() < 3 && start.elapsed() < Duration::from_secs(120) {
-        std::thread::sleep(Duration::from_millis(20));
+    while !(outputs(d).len() >= 3 && writing(d)) && start.elapsed() < Duration::from_secs(120) {
+        std::thread::sleep(Duration::from_millis(2));
     }
     // Only this job's kpcn (its input folder is in the command line): tests run in parallel.
     let ours = format!("{} denoise {}", env!("CARGO_BIN_EXE_kpcn"), d.join("in").display());

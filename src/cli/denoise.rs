@@ -10,6 +10,11 @@ use kpcn::io::{FrameReader, WriteOptions};
 use kpcn::model::{Model, Quality, registry};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+/// Frames of a sequence in flight at once (each within its share of `--max-memory`).
+const FRAMES_IN_FLIGHT: usize = 2;
 
 /// Arguments of `kpcn denoise`.
 #[derive(Debug, Args)]
@@ -78,7 +83,7 @@ pub struct DenoiseArgs {
     pub threads: Option<usize>,
     /// Working memory in MB that grows with the frame: a band of rows in flight (its
     /// network inputs and features, with the context rows the network reads) and its
-    /// tiles' network activations share it. A band is never thinner than twice its context
+    /// tiles' network activations share it (a sequence's two frames in flight, half each). A band is never thinner than twice its context
     /// rows, nor a tile than twice the network's reach: a wide network exceeds a small
     /// budget rather than running several times slower. Not counted: the process's fixed
     /// cost (program, libraries, model, OpenEXR's row buffers, thread stacks, a 64 MB
@@ -226,9 +231,13 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             args.model, m.description
         );
     }
+    // A sequence keeps two frames in flight, each within half the memory budget, so that
+    // one frame's reading and writing (single-threaded codecs) overlap the other's network.
+    // Bands and tiles do not change the images, so the outputs are the same bits.
+    let in_flight = if jobs.len() > 1 { FRAMES_IN_FLIGHT } else { 1 };
     let options = Options {
         threads: super::threads(args.threads, args.quiet),
-        max_memory_mb: args.max_memory.max(16),
+        max_memory_mb: (args.max_memory / in_flight).max(16),
         tile_size: None,
     };
     let denoiser = match model {
@@ -241,44 +250,80 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             .expect("valid template")
             .progress_chars("=> "),
     );
-    let mut failed = Vec::new();
-    let mut warned = false;
+    let failed = Mutex::new(Vec::new());
+    // Without --skip-bad-frames the run stops at the first bad frame, as frame after frame
+    // would: earlier frames in flight finish, later ones are cancelled (nothing written).
+    let first_error: Mutex<Option<(usize, anyhow::Error)>> = Mutex::new(None);
+    let (next, stop_at, warned) = (AtomicUsize::new(0), AtomicUsize::new(usize::MAX), AtomicBool::new(false));
+    // Per frame, thousandths done: the bar shows their sum.
+    let done: Vec<AtomicUsize> = jobs.iter().map(|_| AtomicUsize::new(0)).collect();
     // Farm schedulers capture stderr to a file: one line per frame (and per quarter of a
     // long frame) instead of a bar that only a terminal can draw.
     let farm = !args.quiet && !std::io::stderr().is_terminal();
-    for (k, (input, output)) in jobs.iter().enumerate() {
-        bar.set_message(format!("frame {}/{}", k + 1, jobs.len()));
-        let t = std::time::Instant::now();
-        let quarter = std::cell::Cell::new(0);
-        let step = |p: Progress| {
-            bar.set_position(k as u64 * 1000 + (1000 * p.done / p.total.max(1)) as u64);
-            let q = 4 * p.done / p.total.max(1);
-            if farm && p.total >= 8 && q > quarter.get() && q < 4 {
-                quarter.set(q);
-                eprintln!("kpcn: frame {}/{} {}: {}%", k + 1, jobs.len(), input.display(), 25 * q);
+    let work = || {
+        loop {
+            let k = next.fetch_add(1, Ordering::SeqCst);
+            if k >= jobs.len() || k > stop_at.load(Ordering::SeqCst) {
+                return;
             }
-            true
-        };
-        match denoise_file(&denoiser, &request, args, (input, output), &step, &mut warned, &bar) {
-            Ok(()) if farm => eprintln!(
-                "kpcn: frame {}/{} {} -> {} ({:.1} s)",
-                k + 1,
-                jobs.len(),
-                input.display(),
-                output.display(),
-                t.elapsed().as_secs_f64()
-            ),
-            Ok(()) => {}
-            Err(e) if args.skip_bad_frames => {
-                bar.suspend(|| eprintln!("kpcn: error: {} (skipped)", super::describe_error(&e)));
-                failed.push(input.clone());
-            }
-            Err(e) => {
-                bar.finish_and_clear();
-                return Err(e);
+            let (input, output) = &jobs[k];
+            bar.set_message(format!("frame {}/{}", k + 1, jobs.len()));
+            let t = std::time::Instant::now();
+            let quarter = AtomicUsize::new(0);
+            let step = |p: Progress| {
+                done[k].store(1000 * p.done / p.total.max(1), Ordering::Relaxed);
+                bar.set_position(done.iter().map(|d| d.load(Ordering::Relaxed) as u64).sum());
+                let q = 4 * p.done / p.total.max(1);
+                if farm && p.total >= 8 && q > quarter.load(Ordering::Relaxed) && q < 4 {
+                    quarter.store(q, Ordering::Relaxed);
+                    eprintln!("kpcn: frame {}/{} {}: {}%", k + 1, jobs.len(), input.display(), 25 * q);
+                }
+                // An earlier frame failed: this one stops at its next tile.
+                k < stop_at.load(Ordering::SeqCst)
+            };
+            match denoise_file(&denoiser, &request, args, (input, output), &step, &warned, &bar) {
+                Ok(()) => {
+                    done[k].store(1000, Ordering::Relaxed);
+                    if farm {
+                        eprintln!(
+                            "kpcn: frame {}/{} {} -> {} ({:.1} s)",
+                            k + 1,
+                            jobs.len(),
+                            input.display(),
+                            output.display(),
+                            t.elapsed().as_secs_f64()
+                        );
+                    }
+                }
+                Err(e) if args.skip_bad_frames => {
+                    bar.suspend(|| eprintln!("kpcn: error: {} (skipped)", super::describe_error(&e)));
+                    failed.lock().expect("not poisoned").push((k, input.clone()));
+                }
+                Err(_) if k > stop_at.load(Ordering::SeqCst) => return, // cancelled
+                Err(e) => {
+                    stop_at.fetch_min(k, Ordering::SeqCst);
+                    let mut first = first_error.lock().expect("not poisoned");
+                    if first.as_ref().is_none_or(|(at, _)| k < *at) {
+                        *first = Some((k, e));
+                    }
+                    return;
+                }
             }
         }
+    };
+    std::thread::scope(|s| {
+        for _ in 1..in_flight {
+            s.spawn(&work);
+        }
+        work();
+    });
+    if let Some((_, e)) = first_error.into_inner().expect("not poisoned") {
+        bar.finish_and_clear();
+        return Err(e);
     }
+    let mut failed = failed.into_inner().expect("not poisoned");
+    failed.sort();
+    let failed: Vec<PathBuf> = failed.into_iter().map(|(_, p)| p).collect();
     bar.finish_and_clear();
     if !failed.is_empty() {
         let list: Vec<String> = failed.iter().map(|p| p.display().to_string()).collect();
@@ -311,14 +356,14 @@ fn denoise_file(
     args: &DenoiseArgs,
     (input, output): (&Path, &Path),
     progress: &dyn Fn(Progress) -> bool,
-    warned: &mut bool,
+    warned: &AtomicBool,
     bar: &ProgressBar,
 ) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
     let mut note = |n: Note| {
         let say = match &n {
             _ if args.quiet => false,
-            Note::EstimatedVariances { .. } => args.verbose || !std::mem::replace(warned, true),
+            Note::EstimatedVariances { .. } => args.verbose || !warned.swap(true, Ordering::SeqCst),
             Note::ViewLayerChosen { .. } => true,
             n => n.is_warning() || args.verbose,
         };
