@@ -313,7 +313,7 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     };
     std::thread::scope(|s| {
         for _ in 1..in_flight {
-            s.spawn(&work);
+            s.spawn(work);
         }
         work();
     });
