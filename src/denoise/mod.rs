@@ -230,25 +230,6 @@ impl Denoiser {
         Ok(d)
     }
 
-    /// Checks, before a host's frame is copied, that it can be denoised in memory: its
-    /// `copied_planes` planes of `width`×`height` floats (the host's images read into the
-    /// library's layout), the network's inputs and the working memory.
-    pub fn reserve_for_host_frame(
-        &self,
-        width: usize,
-        height: usize,
-        copied_planes: usize,
-    ) -> Result<(), DenoiseError> {
-        let copies = copied_planes.saturating_mul(width).saturating_mul(height).saturating_mul(4);
-        reserve_working_memory(
-            copies.saturating_add(KpcnInputs::bytes(width, height)).saturating_add(self.working_bytes(
-                width,
-                0..height,
-                height,
-            )),
-        )
-    }
-
     /// Preprocesses `inputs` in this denoiser's threads; `whole` holds the whole frame's
     /// statistics when `inputs` is a band of it (measured when [`Denoiser::auto_exposed`]).
     /// Owned inputs are changed in place where the model needs it; borrowed ones are copied

@@ -4,11 +4,13 @@
 //! released, on a worker thread, while the calling thread watches for Ctrl-C and calls the
 //! progress callback. `python/kpcn/__init__.py` holds the exception classes raised here.
 
-use kpcn::denoise::{DenoiseError, Denoisers, FileError, FileRequest, Options, Outcome, Progress, ViewLayers};
-use kpcn::io::layout::Layout;
+use kpcn::denoise::{
+    Bands, DenoiseError, Denoised, Denoisers, FileError, FileRequest, Options, Outcome, Progress, ViewLayers,
+};
+use kpcn::io::layout::{KpcnInputs, Layout};
 use kpcn::io::{IoError, NamedImages, WriteOptions};
 use kpcn::model::ModelError;
-use numpy::ndarray::{ArrayViewD, Axis, Ix2};
+use numpy::ndarray::ArrayViewD;
 use numpy::{IntoPyArray, PyArray3, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::PyUserWarning;
 use pyo3::prelude::*;
@@ -129,14 +131,68 @@ fn run_detached<T: Send>(
     result.map_err(|_| raise(py, "Error", "kpcn panicked (a bug): please report it with the input".into()))
 }
 
-/// A host image: a (H, W) or (H, W, C) float32/float16 numpy array, checked.
-struct Image<'py> {
-    name: String,
-    array: Bound<'py, numpy::PyUntypedArray>,
-    height: usize,
+/// Where a host image's samples lie, for the worker thread to read band by band.
+#[derive(Clone, Copy)]
+struct Samples {
+    /// Sample (0, 0, 0).
+    ptr: *const u8,
+    /// Bytes between rows, pixels and channels (any sign).
+    strides: [isize; 3],
+    half: bool,
     width: usize,
     /// Channels to read (the first ones).
     channels: usize,
+}
+
+// SAFETY: read-only, and the calling thread keeps the array alive and borrowed (a numpy
+// read-only borrow) until the worker thread that reads it has finished.
+unsafe impl Send for Samples {}
+// SAFETY: as above; reads only.
+unsafe impl Sync for Samples {}
+
+impl Samples {
+    /// Rows `rows` as packed planes.
+    fn rows(&self, rows: std::ops::Range<usize>) -> Vec<Vec<f32>> {
+        (0..self.channels)
+            .map(|c| {
+                let mut plane = Vec::with_capacity(self.width * rows.len());
+                for y in rows.clone() {
+                    for x in 0..self.width {
+                        let at =
+                            y as isize * self.strides[0] + x as isize * self.strides[1] + c as isize * self.strides[2];
+                        // SAFETY: (y, x, c) is inside the array's shape, which with its strides
+                        // numpy vouches for; unaligned reads, as views may be.
+                        let p = unsafe { self.ptr.offset(at) };
+                        // SAFETY: as above.
+                        plane.push(unsafe {
+                            if self.half {
+                                half::f16::from_bits(std::ptr::read_unaligned(p as *const u16)).to_f32()
+                            } else {
+                                std::ptr::read_unaligned(p as *const f32)
+                            }
+                        });
+                    }
+                }
+                plane
+            })
+            .collect()
+    }
+}
+
+/// A numpy array's read-only borrow, held while its [`Samples`] are read.
+#[allow(dead_code)] // held, never read
+enum Borrow<'py> {
+    F32(numpy::PyReadonlyArrayDyn<'py, f32>),
+    F16(numpy::PyReadonlyArrayDyn<'py, half::f16>),
+}
+
+/// A host image: a (H, W) or (H, W, C) float32/float16 numpy array, checked and borrowed.
+struct Image<'py> {
+    name: String,
+    height: usize,
+    width: usize,
+    samples: Samples,
+    _borrow: Borrow<'py>,
 }
 
 impl<'py> Image<'py> {
@@ -167,38 +223,48 @@ impl<'py> Image<'py> {
         let Some(&channels) = allowed.iter().rev().find(|&&k| k <= c) else {
             return Err(bad(format!("has {c} channels, needs {}", allowed[0])));
         };
+        fn samples<T: numpy::Element>(v: ArrayViewD<'_, T>, width: usize, channels: usize, half: bool) -> Samples {
+            let size = std::mem::size_of::<T>() as isize;
+            let s = v.strides();
+            Samples {
+                ptr: v.as_ptr() as *const u8,
+                strides: [s[0] * size, s[1] * size, s.get(2).map_or(0, |c| c * size)],
+                half,
+                width,
+                channels,
+            }
+        }
         let dtype = a.dtype();
-        if !dtype.is_equiv_to(&numpy::dtype::<f32>(py)) && !dtype.is_equiv_to(&numpy::dtype::<half::f16>(py)) {
+        let (samples, borrow) = if dtype.is_equiv_to(&numpy::dtype::<f32>(py)) {
+            let b = a.cast::<PyArrayDyn<f32>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
+            (samples(b.as_array(), width, channels, false), Borrow::F32(b))
+        } else if dtype.is_equiv_to(&numpy::dtype::<half::f16>(py)) {
+            let b = a.cast::<PyArrayDyn<half::f16>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
+            (samples(b.as_array(), width, channels, true), Borrow::F16(b))
+        } else {
             return Err(bad(format!(
                 "dtype {dtype} is not float32 or float16 — convert it with .astype(numpy.float32)"
             )));
-        }
-        Ok(Image { name: name.to_string(), array: a.clone(), height, width, channels })
+        };
+        Ok(Image { name: name.to_string(), height, width, samples, _borrow: borrow })
     }
+}
 
-    /// The image's planes, read straight from the array whatever its strides.
-    fn planes(&self) -> PyResult<Vec<Vec<f32>>> {
-        let py = self.array.py();
-        let bad = |msg: String| raise(py, "InputError", format!("{}: {msg}", self.name));
-        fn read<T: numpy::Element + Copy>(v: ArrayViewD<'_, T>, k: usize, f: impl Fn(T) -> f32) -> Vec<Vec<f32>> {
-            let v = match v.ndim() {
-                2 => v.insert_axis(Axis(2)),
-                _ => v,
-            };
-            (0..k)
-                .map(|i| {
-                    let plane = v.index_axis(Axis(2), i).into_dimensionality::<Ix2>().expect("2-D");
-                    plane.iter().map(|&x| f(x)).collect()
-                })
-                .collect()
-        }
-        if let Ok(a) = self.array.cast::<PyArrayDyn<f32>>() {
-            let a = a.try_readonly().map_err(|e| bad(e.to_string()))?;
-            Ok(read(a.as_array(), self.channels, |x| x))
-        } else {
-            let a = self.array.cast::<PyArrayDyn<half::f16>>()?.try_readonly().map_err(|e| bad(e.to_string()))?;
-            Ok(read(a.as_array(), self.channels, half::f16::to_f32))
-        }
+/// Why a streamed denoise of host images failed.
+enum Failed {
+    Io(IoError),
+    Denoise(DenoiseError),
+}
+
+impl From<DenoiseError> for Failed {
+    fn from(e: DenoiseError) -> Self {
+        Failed::Denoise(e)
+    }
+}
+
+impl From<IoError> for Failed {
+    fn from(e: IoError) -> Self {
+        Failed::Io(e)
     }
 }
 
@@ -300,24 +366,47 @@ impl Denoiser {
             given.iter().map(|(name, array)| Image::new(name, array)).collect::<PyResult<_>>()?;
         let first = images.first().ok_or_else(|| raise(py, "InputError", "no images given".into()))?;
         let (w, h) = (first.width, first.height);
-        let (denoiser, _) = self.denoisers.pick(given.iter().any(|(n, _)| n == "colorVariance"));
-        // Checked before any copy, so that a frame too large is an error, not an abort.
-        denoiser
-            .reserve_for_host_frame(w, h, images.iter().map(|i| i.channels).sum())
-            .map_err(|e| denoise_err(py, e))?;
-        let mut named = NamedImages::new(w, h);
-        for image in &images {
-            named.insert(&image.name, image.planes()?).map_err(|e| io_err(py, e))?;
+        if let Some(i) = images.iter().find(|i| (i.width, i.height) != (w, h)) {
+            return Err(raise(
+                py,
+                "InputError",
+                format!(
+                    "{}: is {}x{} but the frame is {w}x{h} — pass every image of a frame at one size",
+                    i.name, i.width, i.height
+                ),
+            ));
         }
+        let (denoiser, _) = self.denoisers.pick(given.iter().any(|(n, _)| n == "colorVariance"));
+        // Streamed in bands as files are: the arrays are read a band at a time, never
+        // copied whole. Checked before any work, so that a frame too large is an error.
+        let bands = Bands::new(denoiser, w, h, None);
+        let copied: usize = images.iter().map(|i| i.samples.channels).sum();
+        bands.reserve(denoiser, copied, w * h * 3 * 4).map_err(|e| denoise_err(py, e))?;
+        let samples: Vec<(&str, Samples)> = images.iter().map(|i| (i.name.as_str(), i.samples)).collect();
+        let mut rgb = vec![0f32; w * h * 3];
+        let done = run_detached(py, progress, |step| {
+            let mut read = |rows: std::ops::Range<usize>| -> Result<KpcnInputs, Failed> {
+                let mut named = NamedImages::new(w, rows.len());
+                for (name, s) in &samples {
+                    named.insert(name, s.rows(rows.clone()))?;
+                }
+                Ok(named.inputs()?)
+            };
+            let mut write = |rows: std::ops::Range<usize>, d: Denoised| -> Result<(), Failed> {
+                for (i, px) in rgb[rows.start * w * 3..rows.end * w * 3].chunks_exact_mut(3).enumerate() {
+                    for (v, plane) in px.iter_mut().zip(&d.color) {
+                        *v = plane[i];
+                    }
+                }
+                Ok(())
+            };
+            denoiser.denoise_streamed(&bands, &mut read, &mut write, step)
+        })?;
         drop(images);
-        let inputs = named.inputs().map_err(|e| io_err(py, e))?;
-        drop(named);
-        let result =
-            run_detached(py, progress, |step| denoiser.denoise(&inputs, step))?.map_err(|e| denoise_err(py, e))?;
-        let (w, h) = (result.width, result.height);
-        let mut rgb = Vec::with_capacity(w * h * 3);
-        for p in 0..w * h {
-            rgb.extend(result.color.iter().map(|c| c[p]));
+        match done {
+            Ok(()) => {}
+            Err(Failed::Io(e)) => return Err(io_err(py, e)),
+            Err(Failed::Denoise(e)) => return Err(denoise_err(py, e)),
         }
         let array = numpy::ndarray::Array3::from_shape_vec((h, w, 3), rgb).expect("h*w*3 values");
         Ok(array.into_pyarray(py))

@@ -216,6 +216,13 @@ def test_threads_denoise_concurrently_with_the_gil_released(example, denoiser):
     assert len(ticks) > 10, "Python threads ran while kpcn denoised"
 
 
+def test_arrays_stream_in_bands_with_the_same_bits(example):
+    frame = big(example, reps=4)
+    in_bands = kpcn.Denoiser(max_memory=16).denoise(**frame)
+    whole = kpcn.Denoiser(max_memory=8192).denoise(**frame)
+    assert same_bits(in_bands, whole)
+
+
 def test_ctrl_c_cancels_within_a_tile(example):
     one = kpcn.Denoiser(threads=1, max_memory=16)
     frame = big(example)
