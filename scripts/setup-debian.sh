@@ -39,10 +39,4 @@ fi
 # openjd-cli runs the render-farm job template in its test (plugins/openjd), as a farm
 # would: from PyPI, pinned, in its own virtual environment (Debian's Python refuses pip
 # installs outside one). tests/farm.rs looks for it there.
-openjd_version=0.8.0
-openjd_venv=${XDG_CACHE_HOME:-$HOME/.cache}/kpcn/openjd
-if ! "$openjd_venv/bin/openjd" --version 2>/dev/null | grep -qx "Open Job Description CLI $openjd_version"; then
-    echo "kpcn setup: installing openjd-cli $openjd_version into $openjd_venv" >&2
-    python3 -m venv "$openjd_venv"
-    "$openjd_venv/bin/pip" install --quiet --disable-pip-version-check "openjd-cli==$openjd_version"
-fi
+"$(dirname "$0")/venv-tool.sh" openjd openjd-cli==0.8.0 "Open Job Description CLI 0.8.0" >/dev/null
