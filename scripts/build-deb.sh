@@ -13,7 +13,7 @@
 #   KPCN_PROFILE=dev scripts/build-deb.sh   # the debug build (what the test uses)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-target=${CARGO_TARGET_DIR:-target}
+target=$(realpath -m "${CARGO_TARGET_DIR:-target}")
 stage=$target/debian/stage
 rm -rf "$stage"
 # The library core (libkpcn.so.VERSION and its links, libkpcn.a, kpcn.h: scripts/install.sh
@@ -61,7 +61,7 @@ mkdir -p "$pc"
 sed "s|^prefix=/usr|prefix=$(cd "$stage" && pwd)/usr|" "$lib/pkgconfig/kpcn.pc" >"$pc/kpcn.pc"
 PKG_CONFIG_PATH=$pc KPCN_PLUGIN_RPATH="" plugins/oiio/build.sh "$lib/kpcn/oiio-plugins" >/dev/null
 
-(cd plugins/blender && python3 -m zipfile -c "$OLDPWD/$stage/usr/share/kpcn/kpcn-blender-addon.zip" kpcn_denoise.py)
+(cd plugins/blender && python3 -m zipfile -c "$stage/usr/share/kpcn/kpcn-blender-addon.zip" kpcn_denoise.py)
 "$stage/usr/bin/kpcn" manpages "$target/debian/man" >/dev/null
 for page in "$target"/debian/man/*.1; do
     gzip -9n <"$page" >"$stage/usr/share/man/man1/$(basename "$page").gz"
