@@ -5,7 +5,7 @@
 //! buffers (the C ABI, the Python module) are streamed alike.
 
 use super::{DenoiseError, Denoised, Denoiser, Progress, reserve_working_memory};
-use crate::features::{self, FrameStats};
+use crate::features;
 use crate::io::layout::KpcnInputs;
 use std::borrow::Cow;
 use std::ops::Range;
@@ -117,13 +117,12 @@ impl Denoiser {
         let whole = if bands.len() == 1 {
             None
         } else {
-            let (mut max_depth, mut meter) = (0f32, features::ExposureMeter::new(bands.width));
+            let mut meter = features::FrameStatsMeter::new(bands.width, self.auto_exposed());
             for band in bands.iter() {
                 let inputs = read(band.clone())?;
-                max_depth = max_depth.max(features::max_depth(&inputs.depth));
-                meter.add_rows(inputs.color.each_ref().map(Vec::as_slice));
+                meter.add(&inputs.depth, Some(inputs.color.each_ref().map(Vec::as_slice)));
             }
-            Some(FrameStats { max_depth, exposure: if self.auto_exposed() { meter.exposure() } else { 1.0 } })
+            Some(meter.finish())
         };
         let (total, mut done) = (bands.total_tiles(self), 0);
         for band in bands.iter() {

@@ -368,19 +368,17 @@ impl FileJob {
         let names = if exposure { self.mapping.channels() } else { depth.mean_channels() };
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let (w, h) = self.size();
-        let mut m = 0f32;
-        let mut meter = features::ExposureMeter::new(w);
+        let mut meter = features::FrameStatsMeter::new(w, exposure);
         for a in (0..h).step_by(band) {
             let fb: FrameBuffers = self.reader.read_band(Some(&names), a, a + band)?;
-            if exposure {
+            if meter.wants_colour() {
                 let inputs = self.mapping.extract(&fb)?;
-                m = m.max(features::max_depth(&inputs.depth));
-                meter.add_rows(inputs.color.each_ref().map(Vec::as_slice));
+                meter.add(&inputs.depth, Some(inputs.color.each_ref().map(Vec::as_slice)));
             } else if let Some(depth) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) {
-                m = m.max(features::max_depth(&depth));
+                meter.add(&depth, None);
             }
         }
-        Ok(FrameStats { max_depth: m, exposure: if exposure { meter.exposure() } else { 1.0 } })
+        Ok(meter.finish())
     }
 }
 

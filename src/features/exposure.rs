@@ -88,6 +88,39 @@ pub struct FrameStats {
     pub exposure: f32,
 }
 
+/// [`FrameStats`] gathered band by band, top to bottom (a streamed frame's first pass).
+#[derive(Debug, Clone)]
+pub struct FrameStatsMeter {
+    max_depth: f32,
+    /// Metering the exposure, for auto-exposed models.
+    exposure: Option<ExposureMeter>,
+}
+
+impl FrameStatsMeter {
+    /// For a frame `width` wide; `exposure`: the model is auto-exposed.
+    pub fn new(width: usize, exposure: bool) -> Self {
+        FrameStatsMeter { max_depth: 0.0, exposure: exposure.then(|| ExposureMeter::new(width)) }
+    }
+
+    /// Whether the next band's colour is wanted (else its depth suffices).
+    pub fn wants_colour(&self) -> bool {
+        self.exposure.is_some()
+    }
+
+    /// Adds a band's depth, and its colour (as the network's inputs hold it) when wanted.
+    pub fn add(&mut self, depth: &[f32], colour: Option<[&[f32]; 3]>) {
+        self.max_depth = self.max_depth.max(super::max_depth(depth));
+        if let (Some(m), Some(c)) = (&mut self.exposure, colour) {
+            m.add_rows(c);
+        }
+    }
+
+    /// The frame's statistics.
+    pub fn finish(self) -> FrameStats {
+        FrameStats { max_depth: self.max_depth, exposure: self.exposure.map_or(1.0, |m| m.exposure()) }
+    }
+}
+
 /// [`ExposureMeter`]'s factor for a whole frame.
 pub fn auto_exposure(k: &KpcnInputs) -> f32 {
     let mut m = ExposureMeter::new(k.width);

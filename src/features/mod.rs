@@ -12,7 +12,7 @@ use std::borrow::Cow;
 mod exposure;
 mod repairs;
 
-pub use exposure::{EXPOSURE_BLOCK, EXPOSURE_KEY, ExposureMeter, FrameStats, auto_exposure};
+pub use exposure::{EXPOSURE_BLOCK, EXPOSURE_KEY, ExposureMeter, FrameStats, FrameStatsMeter, auto_exposure};
 pub use repairs::{Repairs, repairs};
 
 /// The paper's ε, used in albedo demodulation and recomposition.
