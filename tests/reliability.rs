@@ -588,7 +588,7 @@ fn max_memory_bounds_the_working_memory() {
         assert!(o.status.success(), "{}", stderr(&o));
         let stdout = String::from_utf8_lossy(&o.stdout);
         if model == "compact" && budget == 16 {
-            assert!(stdout.contains("bands of 56 rows"), "several bands: {stdout}");
+            assert!(stdout.contains("bands of 112 rows"), "several bands: {stdout}");
         }
         let kb: u64 = stderr(&o)
             .lines()

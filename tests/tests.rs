@@ -4,6 +4,7 @@ mod util;
 
 mod capi;
 mod cli;
+mod cycles_crops;
 mod deb;
 mod denoise;
 mod eval;

@@ -589,7 +589,7 @@ pub unsafe extern "C" fn kpcn_denoise_file(
             aovs: o.aovs,
             separate: o.separate,
             in_place: o.in_place,
-            write: WriteOptions { compression: None, no_clobber: o.no_clobber },
+            write: WriteOptions { no_clobber: o.no_clobber, ..WriteOptions::default() },
             band_rows: None,
         };
         let job = FileJob::open(Path::new(input), layout)?;

@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-/// Frames of a sequence in flight at once (each within its share of `--max-memory`).
+/// The most frames of a sequence in flight at once (each within its share of
+/// `--max-memory`).
 const FRAMES_IN_FLIGHT: usize = 2;
 
 /// Arguments of `kpcn denoise`.
@@ -83,13 +84,14 @@ pub struct DenoiseArgs {
     pub threads: Option<usize>,
     /// Working memory in MB that grows with the frame: a band of rows in flight (its
     /// network inputs and features, with the context rows the network reads) and its
-    /// tiles' network activations share it (a sequence's two frames in flight, half each). A band is never thinner than twice its context
-    /// rows, nor a tile than twice the network's reach: a wide network exceeds a small
-    /// budget rather than running several times slower. Not counted: the process's fixed
-    /// cost (program, libraries, model, OpenEXR's row buffers, thread stacks, a 64 MB
-    /// buffer pool; 200-450 MB). Measured peak RSS for a 1920x1152 frame with 38
-    /// channels: 64 -> 706 MB, 512 -> 812, 1024 -> 1028 (`compact`: 339, 613, 856);
-    /// 3840x2160 with 41 channels at the default: 877 MB (`compact`: 740).
+    /// tiles' network activations share it (from twice the default, a sequence keeps two
+    /// frames in flight, half each). A band is never thinner than twice its context rows,
+    /// nor a tile than twice the network's reach: a wide network exceeds a small budget
+    /// rather than running several times slower. Not counted: the process's fixed cost
+    /// (program, libraries, model, OpenEXR's row buffers for each decoding and encoding
+    /// thread, thread stacks, a 64 MB buffer pool; 200-450 MB). Measured peak RSS for a
+    /// 1920x1080 frame with 41 channels: 64 -> 858 MB, 512 -> 900, 1024 -> 1428 (one
+    /// band: 1.3x faster); 3840x2160 at the default: 949 MB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
@@ -164,6 +166,8 @@ fn check_outputs(jobs: &[(PathBuf, PathBuf)], args: &DenoiseArgs) -> anyhow::Res
 /// Runs `kpcn denoise`.
 pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
     let mut jobs = jobs(args)?;
+    let threads = super::threads(args.threads, args.quiet);
+    let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
     let request = FileRequest {
         layout: args.layout.map(|l| l.0),
         view_layers: ViewLayers::parse(args.view_layer.as_deref()),
@@ -171,7 +175,12 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
         aovs: args.aovs,
         separate: args.separate,
         in_place: args.in_place,
-        write: WriteOptions { compression: args.compression.clone(), no_clobber: args.no_clobber },
+        // The CLI owns its OpenImageIO: outputs compress on the denoiser's threads.
+        write: WriteOptions {
+            compression: args.compression.clone(),
+            no_clobber: args.no_clobber,
+            encoders: threads.unwrap_or(cores),
+        },
     };
     request.check().map_err(Usage)?;
     if let Some(c) = args.compression.as_deref().filter(|c| !kpcn::io::COMPRESSIONS.contains(c)) {
@@ -231,15 +240,15 @@ pub fn run(args: &DenoiseArgs) -> anyhow::Result<()> {
             args.model, m.description
         );
     }
-    // A sequence keeps two frames in flight, each within half the memory budget, so that
-    // one frame's reading and writing (single-threaded codecs) overlap the other's network.
-    // Bands and tiles do not change the images, so the outputs are the same bits.
-    let in_flight = if jobs.len() > 1 { FRAMES_IN_FLIGHT } else { 1 };
-    let options = Options {
-        threads: super::threads(args.threads, args.quiet),
-        max_memory_mb: (args.max_memory / in_flight).max(16),
-        tile_size: None,
-    };
+    // A sequence keeps two frames in flight when the budget gives each at least the default
+    // budget, so that one frame's reading and writing overlap the other's network. With
+    // less, a frame would take more bands (a 1280×720 frame: two at 256 MB, each reading
+    // and running context rows twice) and the pair is slower than one frame at a time
+    // (measured: BENCHMARKS.md). Bands and tiles do not change the images, so the outputs
+    // are the same bits.
+    let per_frame = Options::default().max_memory_mb;
+    let in_flight = if jobs.len() > 1 { (args.max_memory / per_frame).clamp(1, FRAMES_IN_FLIGHT) } else { 1 };
+    let options = Options { threads, max_memory_mb: (args.max_memory / in_flight).max(16), tile_size: None };
     let denoiser = match model {
         Some(m) => Denoisers::one(m, options)?,
         None => Denoisers::auto(options)?,

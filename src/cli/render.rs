@@ -151,7 +151,7 @@ impl SamplingArgs {
                 .progress_chars("=> "),
         );
         bar.set_message(desc.name.clone());
-        let write = WriteOptions { compression: None, no_clobber: self.no_clobber };
+        let write = WriteOptions { no_clobber: self.no_clobber, ..WriteOptions::default() };
         let done =
             self.pool()?.install(|| render_to_dir(desc, &opts, self.reference_spp, dir, &write, &|n| bar.inc(n)));
         bar.finish_and_clear();

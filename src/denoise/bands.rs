@@ -11,11 +11,11 @@ use std::borrow::Cow;
 use std::ops::Range;
 
 /// Working floats per pixel of a band: every channel of a layered EXR (≈40), the
-/// network inputs (21) and the features (25), with room to spare, counted twice so that
-/// a band takes about half the memory budget and the tiles in flight the rest (a 4K frame
-/// of 41 channels peaked at 1.02 GB with the whole budget per band, 0.88 GB with half,
-/// in the same time).
-const BAND_FLOATS_PER_PIXEL: usize = 240;
+/// network inputs (21) and the features (25), with room to spare, so that a band takes
+/// about half the memory budget and the tiles in flight the rest. (Twice this left a
+/// 1280×720 frame two bands at the default budget, and one runs 1.4× faster for 100 MB
+/// more peak RSS: BENCHMARKS.md.)
+const BAND_FLOATS_PER_PIXEL: usize = 120;
 
 /// The bands of a `width`×`height` frame for one denoiser.
 #[derive(Debug, Clone)]
@@ -37,7 +37,7 @@ impl Bands {
         // ladder's 194 rows each side at 4K: 5× the frame's work in 96-row bands): then a
         // band is twice the context, over budget rather than several times slower.
         let halo = denoiser.halo();
-        let by_budget = if by_budget < halo { 2 * halo } else { by_budget.max(16) };
+        let by_budget = by_budget.max(2 * halo).max(16);
         let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
         let rows = rows.min(height.max(1));
         let bands = (0..height).step_by(rows).map(|a| a..(a + rows).min(height)).collect();

@@ -232,6 +232,8 @@ impl FileJob {
         }
         let bands = self.bands(denoiser, opts);
         let band = bands.rows();
+        // Every handle is opened before the output, whose creation sizes OpenEXR's pool.
+        self.reader.set_decoders(denoiser.threads())?;
         // The largest band's working memory (context rows included), checked before the
         // output exists.
         bands.reserve(denoiser, 0, 0).map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;

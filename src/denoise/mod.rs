@@ -149,6 +149,11 @@ impl Denoiser {
         Ok(Denoiser { model, options, pool, pyramid })
     }
 
+    /// The threads it runs on.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+
     /// The model.
     pub fn model(&self) -> &Model {
         &self.model
@@ -206,16 +211,16 @@ impl Denoiser {
     /// network evaluation, and the results. [`Denoiser::denoise`] on a whole frame is one
     /// band.
     pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
-        let arch = &self.model.arch;
-        let r = self.reach().radius;
-        let tile = self
-            .band_tiles(width, rows.clone(), total_rows)
-            .iter()
-            .map(|t| arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h))
-            .max()
-            .unwrap_or(0);
+        let tile =
+            self.band_tiles(width, rows.clone(), total_rows).iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
         // Three results of three planes each.
         Features::bytes(width, total_rows) + tile + width * rows.len() * 4 * 9
+    }
+
+    /// The network's working bytes on tile `t` (its region with context).
+    fn tile_bytes(&self, t: &Tile) -> usize {
+        let r = self.reach().radius;
+        self.model.arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h)
     }
 
     /// Denoises one frame. `progress` is called after every tile, on the calling thread;
@@ -290,6 +295,11 @@ impl Denoiser {
         // The tile loop runs on the caller's thread, so `progress` does too (a C host's
         // callback may touch its UI); each tile's work runs in the pool.
         let tiles = plan(self, w, rows.start..rows.start + h, f.height);
+        // Idle activations are kept for reuse within what the budget leaves beside the
+        // features and the largest tile, and a quarter of that tile at most.
+        let tile = tiles.iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
+        let left = (self.options.max_memory_mb << 20).saturating_sub(Features::bytes(w, f.height) + tile);
+        let _reuse = kernel::buffers::Lease::new(left.min(tile / 4));
         let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
         let mut s_hat = d_hat.clone();
         for (i, t) in tiles.iter().enumerate() {

@@ -199,6 +199,7 @@ impl FileRequest {
             write: WriteOptions {
                 compression: self.write.compression.clone(),
                 no_clobber: self.write.no_clobber && first,
+                encoders: self.write.encoders,
             },
             band_rows: None,
         }

@@ -246,6 +246,10 @@ pub struct PartLayout {
 /// allows can be processed in pieces (`kpcn denoise` streams this way).
 pub struct FrameReader {
     input: Input,
+    /// More handles on the same file, opened on first use, that decode other rows of a
+    /// read at the same time ([`FrameReader::set_decoders`]).
+    more: Vec<Input>,
+    decoders: usize,
     header: FrameBuffers,
     channels: Vec<ChannelRef>,
     /// Per subimage: tile height (0 for scanline files) and data-window origin y.
@@ -329,7 +333,25 @@ impl FrameReader {
             subimages.push(info);
             part_names.push(part);
         }
-        Ok(FrameReader { input, header, channels, subimages, part_names })
+        Ok(FrameReader { input, more: Vec::new(), decoders: 1, header, channels, subimages, part_names })
+    }
+
+    /// Decodes each read on `n` threads, each with its own handle on the file (opened
+    /// now) reading its own rows: the CLI has OpenEXR decompress on the calling thread
+    /// ([`decode_exr_on_the_calling_thread`](super::decode_exr_on_the_calling_thread)),
+    /// so this is what spreads it over cores. Each handle holds one chunk and one call's
+    /// rows (a 3840-wide file of 41 float channels: about 30 MB), far less than OpenEXR's
+    /// own pool keeps. 1 by default.
+    pub fn set_decoders(&mut self, n: usize) -> Result<(), IoError> {
+        self.decoders = n.max(1);
+        let path = self.header.display_path();
+        while self.more.len() + 1 < self.decoders {
+            let handle = Input::open(&path).map_err(|reason| {
+                IoError::from_oiio(&path, reason, |reason| IoError::Open { path: path.clone(), reason })
+            })?;
+            self.more.push(handle);
+        }
+        Ok(())
     }
 
     /// Size, windows, metadata and source of the frame; no planes.
@@ -414,9 +436,14 @@ impl FrameReader {
             }
             let mut unique: Vec<usize> = indices.iter().map(|&(index, _)| index).collect();
             unique.dedup();
-            let mut planes = read_planes(&mut self.input, s, info, y0, y1, &unique).map_err(|reason| {
+            let read_err = |reason| {
                 IoError::from_oiio(&path, reason, |reason| IoError::Read { path: path.clone(), subimage: s, reason })
-            })?;
+            };
+            // A handle per decoder, for reads long enough to share (a chunk each at least).
+            let decoders = self.decoders.min((y1 - y0).div_ceil(DECODER_ROWS)).max(1);
+            let mut handles: Vec<&mut Input> = std::iter::once(&mut self.input).chain(&mut self.more).collect();
+            handles.truncate(decoders);
+            let mut planes = read_planes(&mut handles, s, info, y0, y1, &unique).map_err(read_err)?;
             for (p, &(index, k)) in indices.iter().enumerate() {
                 // A channel asked for twice is copied; otherwise moved.
                 let again = indices.get(p + 1).is_some_and(|n| n.0 == index);
@@ -449,23 +476,23 @@ fn file_kind(m: &std::fs::Metadata) -> &'static str {
     }
 }
 
+/// Rows each decoder of a read gets at least, a multiple of every compression's chunk
+/// (zip's 16 rows, piz's and dwaa's 32), so that no chunk is decoded twice but dwab's.
+const DECODER_ROWS: usize = 64;
+
 /// Decodes rows `[y0, y1)` of channels `channels` (sorted, distinct) of subimage `s` into
-/// one plane each. Every call reads all of them at once, since a compressed chunk is
-/// decoded whole whichever of its channels are asked for, a band of rows at a time so
-/// that the interleaved scratch (the channels' span) stays small. Tiled files are read
-/// from tile boundaries and cropped.
+/// one plane each, the rows split between `handles` (each on its own thread but the
+/// first, on the caller's). Allocated fallibly: a frame-sized plane that cannot be had is
+/// an error, not an abort.
 fn read_planes(
-    input: &mut Input,
+    handles: &mut [&mut Input],
     s: usize,
     info: &SubimageInfo,
     y0: usize,
     y1: usize,
     channels: &[usize],
 ) -> Result<Vec<Vec<f32>>, String> {
-    let (w, h) = (info.width, info.height);
-    let (Some(&c0), Some(&last)) = (channels.first(), channels.last()) else { return Ok(Vec::new()) };
-    let (c1, k) = (last + 1, last + 1 - c0);
-    // Frame-sized: allocated fallibly, so that running out is an error, not an abort.
+    let w = info.width;
     let mut planes = Vec::new();
     for _ in channels {
         let mut plane: Vec<f32> = Vec::new();
@@ -473,6 +500,56 @@ fn read_planes(
         plane.resize(w * (y1 - y0), 0.0);
         planes.push(plane);
     }
+    // Rows of each decoder: equal shares, cut on chunk boundaries of the file.
+    let n = handles.len();
+    let share = (y1 - y0).div_ceil(n).next_multiple_of(DECODER_ROWS);
+    let mut cuts: Vec<usize> = (0..n).map(|i| (y0 / DECODER_ROWS * DECODER_ROWS + i * share).clamp(y0, y1)).collect();
+    cuts.push(y1);
+    // Each decoder's rows of every plane.
+    let mut parts: Vec<Vec<&mut [f32]>> = (0..n).map(|_| Vec::new()).collect();
+    for plane in &mut planes {
+        let mut rest = plane.as_mut_slice();
+        for (i, part) in parts.iter_mut().enumerate() {
+            let (mine, after) = rest.split_at_mut((cuts[i + 1] - cuts[i]) * w);
+            part.push(mine);
+            rest = after;
+        }
+    }
+    let mut jobs = handles.iter_mut().zip(parts).enumerate();
+    let (_, (first, first_part)) = jobs.next().expect("one handle at least");
+    std::thread::scope(|scope| {
+        let others: Vec<_> = jobs
+            .map(|(i, (h, part))| {
+                let (a, b) = (cuts[i], cuts[i + 1]);
+                scope.spawn(move || decode_rows(h, s, info, a, b, channels, part))
+            })
+            .collect();
+        let mine = decode_rows(first, s, info, cuts[0], cuts[1], channels, first_part);
+        others
+            .into_iter()
+            .map(|t| t.join().unwrap_or_else(|_| Err("a decoder panicked".into())))
+            .fold(mine, Result::and)
+    })?;
+    Ok(planes)
+}
+
+/// Decodes rows `[y0, y1)` of channels `channels` into `planes` (those rows of one plane
+/// each). Every call reads all of them at once, since a compressed chunk is decoded whole
+/// whichever of its channels are asked for, a band of rows at a time so that the
+/// interleaved scratch (the channels' span) stays small. Tiled files are read from tile
+/// boundaries and cropped.
+fn decode_rows(
+    input: &mut Input,
+    s: usize,
+    info: &SubimageInfo,
+    y0: usize,
+    y1: usize,
+    channels: &[usize],
+    mut planes: Vec<&mut [f32]>,
+) -> Result<(), String> {
+    let (w, h) = (info.width, info.height);
+    let (Some(&c0), Some(&last)) = (channels.first(), channels.last()) else { return Ok(()) };
+    let (c1, k) = (last + 1, last + 1 - c0);
     let th = info.tile_height.max(1);
     let band = th * super::rows_per_call(k).div_ceil(th);
     let mut scratch = Vec::new();
@@ -493,5 +570,5 @@ fn read_planes(
         }
         r0 = r1;
     }
-    Ok(planes)
+    Ok(())
 }

@@ -127,10 +127,12 @@ pub fn oiio_version() -> String {
 }
 
 /// Runs OpenEXR's (de)compression on the calling thread instead of its own thread pool,
-/// which keeps two compressed and decoded chunks per pool thread for each open file: a
-/// 3840-wide file of 41 float channels held 115 MB for reading and 125 MB for writing, and
-/// streamed denoising reads a chunk or a few at a time, single-threaded either way (the
-/// same wall time). Process-wide: for the CLI, never the library on a host's behalf.
+/// which keeps two compressed and decoded chunks per pool thread for each open file (a
+/// 3840-wide file of 41 float channels held 115 MB for reading and 125 MB for writing).
+/// Reads are spread over cores by handles of their own instead
+/// ([`FrameReader::set_decoders`](super::FrameReader::set_decoders)); writes that ask for
+/// it use the pool ([`WriteOptions::encoders`](super::WriteOptions::encoders)).
+/// Process-wide: for the CLI, never the library on a host's behalf.
 pub fn decode_exr_on_the_calling_thread() -> Result<(), String> {
     // SAFETY: sets one OIIO global attribute; no pointers.
     check(unsafe { ffi::kpcn_oiio_set_exr_threads(-1) })
@@ -393,16 +395,21 @@ pub struct Output {
 }
 
 impl Output {
-    /// Creates the file with one part per spec and starts the first part.
-    pub fn create(path: &Path, specs: &[OutputSpec]) -> Result<Self, String> {
+    /// Creates the file with one part per spec and starts the first part. `encoders` > 1
+    /// compresses on that many threads of OpenEXR's pool, which is process-wide (see
+    /// [`WriteOptions::encoders`](super::WriteOptions::encoders)).
+    pub fn create(path: &Path, specs: &[OutputSpec], encoders: usize) -> Result<Self, String> {
         let c = path_cstring(path)?;
         let storage: Vec<SpecStorage> = specs.iter().map(SpecStorage::new).collect::<Result<_, _>>()?;
         let c_specs: Vec<ffi::kpcn_output_spec> =
             storage.iter().zip(specs).map(|(s, spec)| s.c_spec(&spec.info)).collect();
         let mut raw = std::ptr::null_mut();
+        let encoders = encoders.min(64) as i32;
         // SAFETY: every pointer in `c_specs` points into `storage`, alive for the call;
         // the shim copies what it keeps.
-        check(unsafe { ffi::kpcn_output_open(c.as_ptr(), c_specs.as_ptr(), c_specs.len() as i32, &mut raw) })?;
+        check(unsafe {
+            ffi::kpcn_output_open(c.as_ptr(), c_specs.as_ptr(), c_specs.len() as i32, encoders, &mut raw)
+        })?;
         Ok(Self { raw })
     }
 

@@ -23,6 +23,13 @@ pub struct WriteOptions {
     pub compression: Option<String>,
     /// Refuse to replace an existing file.
     pub no_clobber: bool,
+    /// Threads that compress at once (0 and 1: the calling thread alone). Several use
+    /// OpenEXR's thread pool, which is process-wide: OpenImageIO's `exr_threads` is set
+    /// to this while the file is created and put back after, and the pool stays that size
+    /// until OpenImageIO next opens an EXR. For processes that own their OpenImageIO (the
+    /// CLI), never on a host's behalf. Each thread holds two chunks of rows in flight (a
+    /// 3840-wide file of 44 float channels: about 30 MB each).
+    pub encoders: usize,
 }
 
 /// Attributes describing the file rather than the image: OpenImageIO sets them itself.
@@ -95,6 +102,8 @@ pub struct FrameWriter {
     /// Next row of the current part (relative to the data window).
     row: usize,
     scratch: Vec<f32>,
+    /// [`WriteOptions::encoders`]: each call hands OpenEXR a chunk per encoder.
+    encoders: usize,
 }
 
 impl FrameWriter {
@@ -136,7 +145,7 @@ impl FrameWriter {
             })
             .collect();
         let file = AtomicFile::new(path, opts.no_clobber);
-        let out = Output::create(file.temp_path(), &specs).map_err(|reason| {
+        let out = Output::create(file.temp_path(), &specs, opts.encoders).map_err(|reason| {
             IoError::from_oiio(path, reason, |reason| IoError::Write { path: path.into(), reason })
         })?;
         Ok(FrameWriter {
@@ -149,6 +158,7 @@ impl FrameWriter {
             part: 0,
             row: 0,
             scratch: Vec::new(),
+            encoders: opts.encoders.max(1),
         })
     }
 
@@ -167,7 +177,7 @@ impl FrameWriter {
             );
         }
         let out = self.out.as_mut().expect("open until commit");
-        let band = super::rows_per_call(nch);
+        let band = super::rows_per_call(nch) * self.encoders;
         for r0 in (0..rows).step_by(band) {
             let r1 = (r0 + band).min(rows);
             self.scratch.clear();

@@ -1,17 +1,60 @@
 //! Large `f32` buffers, reused: a fresh multi-megabyte allocation is a fresh `mmap`
-//! whose every 4 KiB page faults on first touch, which cost the multi-scale network a
-//! fifth of its time on large tiles. Freed planes go back to a small pool, and
-//! new ones are asked to use transparent huge pages.
+//! whose every page the kernel zeroes on first touch, which cost the multi-scale network
+//! a fifth of its time on large tiles. Freed planes go back to a pool, and new ones are
+//! asked to use transparent huge pages.
 
 use std::sync::Mutex;
 
 /// Buffers smaller than this many floats (1 MiB) are left to the allocator.
 const MIN: usize = 1 << 18;
-/// The pool keeps at most this many floats (64 MiB) of idle buffers.
+/// The pool keeps at least this many floats (64 MiB) of idle buffers; a [`Lease`] raises it.
 const KEEP: usize = 16 << 20;
 
-/// Idle buffers, oldest first.
-static POOL: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
+/// Idle buffers, oldest first, and the floats leased beyond [`KEEP`].
+static POOL: Mutex<Pool> = Mutex::new(Pool { idle: Vec::new(), leased: 0 });
+
+struct Pool {
+    idle: Vec<Vec<f32>>,
+    leased: usize,
+}
+
+impl Pool {
+    /// Frees the oldest idle buffers beyond the bound.
+    fn trim(&mut self) {
+        let keep = KEEP + self.leased;
+        while self.idle.iter().map(Vec::capacity).sum::<usize>() > keep {
+            self.idle.remove(0);
+        }
+    }
+}
+
+fn pool() -> std::sync::MutexGuard<'static, Pool> {
+    POOL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// While alive, lets the pool keep `bytes` more of idle buffers: a tile's network
+/// activations (the 720p default's are 120 MB a layer) are then reused from layer to layer
+/// and tile to tile instead of being zeroed anew by the kernel, which took an eighth of a
+/// 720p file's time. The memory is counted in the working budget that leased it, and is
+/// freed when the lease ends.
+pub struct Lease(usize);
+
+impl Lease {
+    /// Raises the pool's bound by `bytes` until dropped.
+    pub fn new(bytes: usize) -> Lease {
+        let floats = bytes / 4;
+        pool().leased += floats;
+        Lease(floats)
+    }
+}
+
+impl Drop for Lease {
+    fn drop(&mut self) {
+        let mut pool = pool();
+        pool.leased -= self.0;
+        pool.trim();
+    }
+}
 
 /// Whether `bytes` can be allocated now, by asking the allocator once and giving them back:
 /// under an address-space limit (`ulimit -v`, a farm's cgroup) work that would run out
@@ -25,9 +68,8 @@ pub fn can_allocate(bytes: usize) -> bool {
 /// room needed), else a new one backed by huge pages where the kernel allows it.
 pub fn with_capacity(n: usize) -> Vec<f32> {
     if n >= MIN {
-        let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
-        let best =
-            (0..pool.len()).filter(|&i| (n..=2 * n).contains(&pool[i].capacity())).min_by_key(|&i| pool[i].capacity());
+        let pool = &mut pool().idle;
+        let best = (0..pool.len()).filter(|&i| pool[i].capacity() >= n).min_by_key(|&i| pool[i].capacity());
         if let Some(i) = best {
             let mut v = pool.swap_remove(i);
             v.clear();
@@ -52,11 +94,9 @@ pub fn recycle(v: Vec<f32>) {
     if v.capacity() < MIN {
         return;
     }
-    let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
-    pool.push(v);
-    while pool.iter().map(Vec::capacity).sum::<usize>() > KEEP {
-        pool.remove(0);
-    }
+    let mut pool = pool();
+    pool.idle.push(v);
+    pool.trim();
 }
 
 /// Asks the kernel to back a large buffer with transparent huge pages: 512 times fewer

@@ -87,7 +87,7 @@ pub fn mismatched_parts(path: &Path) {
         compression: "zip",
         attributes: &[],
     };
-    let mut out = Output::create(path, &[spec("full", 16, 8), spec("half", 8, 4)]).unwrap();
+    let mut out = Output::create(path, &[spec("full", 16, 8), spec("half", 8, 4)], 1).unwrap();
     out.write_rows(0, 8, &[0.5; 16 * 8]).unwrap();
     out.next_part().unwrap();
     out.write_rows(0, 4, &[0.5; 8 * 4]).unwrap();

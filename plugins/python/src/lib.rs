@@ -449,7 +449,7 @@ impl Denoiser {
             aovs,
             separate,
             in_place,
-            write: WriteOptions { compression, no_clobber },
+            write: WriteOptions { compression, no_clobber, ..WriteOptions::default() },
         };
         request.check().map_err(|why| raise(py, "InputError", why))?;
         let notes = std::sync::Mutex::new(Vec::new());

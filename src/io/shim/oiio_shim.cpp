@@ -9,6 +9,7 @@
 #include <exception>
 #include <new>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -273,12 +274,31 @@ ImageSpec make_spec(const kpcn_output_spec* os) {
 }
 }  // namespace
 
-int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, kpcn_output** out) {
+int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, int encoders,
+                     kpcn_output** out) {
     return guarded([&]() {
         *out = nullptr;
         if (nparts < 1)
             return fail("an image needs at least one part");
+        // OpenEXR sizes its pool from OIIO's `exr_threads` when a writer is made, and the
+        // file keeps the thread count it saw: set for this writer, then put back.
+        static std::mutex exr_threads_mutex;
+        std::unique_lock<std::mutex> lock(exr_threads_mutex, std::defer_lock);
+        int before = 0;
+        if (encoders > 1) {
+            lock.lock();
+            OIIO::getattribute("exr_threads", before);
+            OIIO::attribute("exr_threads", encoders);
+        }
         auto o = ImageOutput::create("openexr");
+        struct Restore {
+            bool on;
+            int value;
+            ~Restore() {
+                if (on)
+                    OIIO::attribute("exr_threads", value);
+            }
+        } restore{encoders > 1, before};
         if (!o)
             return fail(OIIO::geterror());
         auto h = std::make_unique<kpcn_output>();

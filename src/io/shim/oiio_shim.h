@@ -93,7 +93,10 @@ typedef struct kpcn_output_spec {
 } kpcn_output_spec;
 
 /* Opens an EXR of `nparts` parts (1 = an ordinary single-part file) and starts part 0. */
-int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, kpcn_output** out);
+/* `encoders` > 1 compresses on that many threads of OpenEXR's pool (process-wide: it
+   stays that size until OIIO next sizes it); 0 or 1 leaves the pool as the process set it. */
+int kpcn_output_open(const char* path, const kpcn_output_spec* specs, int nparts, int encoders,
+                     kpcn_output** out);
 /* Finishes the current part and starts the next one. */
 int kpcn_output_next_part(kpcn_output* out);
 /* Rows [ybegin, yend) of the current part, all its channels interleaved as f32, in order;

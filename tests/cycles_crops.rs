@@ -1,0 +1,121 @@
+//! The default model on small crops of our own Cycles renders where fireflies and caustics
+//! gather (issue 24's outliers): `tests/data/cycles-crops/`, 48×48 windows of corpus scenes
+//! (`scripts/corpus/crops.sh`; glass lit by small area lights, spots and a point light at
+//! night, one with defocus) at 4, 16 and 64 spp beside a 512-spp reference. The simulator's
+//! hard cases (`hard_cases.rs`) pass where such Cycles frames failed. Every crop must come
+//! out better than its noisy input, leave no outlier (a pixel far above the reference's
+//! 3×3 neighbourhood), and improve with samples; the crops the default still fails are
+//! listed with what they measure, and must not get worse.
+
+use kpcn::denoise::{Denoiser, Options};
+use kpcn::eval::{relmse, rgb};
+use kpcn::io::FrameBuffers;
+use kpcn::io::layout::Mapping;
+use kpcn::model::{Model, registry};
+use std::path::{Path, PathBuf};
+
+/// The crops: scene and window origin in the corpus frame.
+const CROPS: [&str; 4] = ["cyc-00052-x40y8", "cyc-00052-x200y24", "cyc-00059-x152y88", "cyc-00075-x88y104"];
+const SPPS: [u32; 3] = [4, 16, 64];
+
+/// A denoised pixel is an outlier above `OUTLIER_RATIO` × the largest reference pixel of
+/// its 3×3 neighbourhood + `OUTLIER_FLOOR` (luminance as the RGB mean): a firefly kept, or
+/// its energy spread into a blotch where the reference has none.
+const OUTLIER_RATIO: f32 = 4.0;
+const OUTLIER_FLOOR: f32 = 0.5;
+
+/// What the default still fails (2026-12-02, `balanced`): (crop, spp, outliers left).
+/// Measured: cyc-00052-x200y24 at 4 spp keeps one firefly at 6.6× its neighbourhood: the
+/// middle of three on a diagonal (27.9 each where the caustic's reference is 2–4, among
+/// 0.1), which the `fine-pairs` clamp leaves, its second-brightest neighbour being another
+/// of the three; the two ends are clamped.
+const KNOWN_OUTLIERS: &[(&str, u32, usize)] = &[("cyc-00052-x200y24", 4, 1)];
+
+/// Crops whose error does not fall with samples (2026-12-02, `balanced`): (crop, relMSE at
+/// 4 / 16 / 64 spp, measured by this test with `--nocapture`). Glass lit by a small area
+/// light: caustics the network blurs less as they sharpen.
+const KNOWN_GROWTH: &[(&str, [f64; 3])] =
+    &[("cyc-00052-x40y8", [0.2697, 2.0485, 0.7717]), ("cyc-00052-x200y24", [0.0500, 0.0373, 0.0853])];
+
+fn crop(name: &str, what: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/data/cycles-crops/{name}-{what}.exr"))
+}
+
+fn luminance(p: &[Vec<f32>; 3], i: usize) -> f32 {
+    (p[0][i] + p[1][i] + p[2][i]) / 3.0
+}
+
+/// Pixels of `out` above the outlier bound of `reference` (`w` wide).
+fn outliers(out: &[Vec<f32>; 3], reference: &[Vec<f32>; 3], w: usize) -> Vec<(usize, usize, f32)> {
+    let h = reference[0].len() / w;
+    let mut found = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let mut max = 0f32;
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    max = max.max(luminance(reference, yy * w + xx));
+                }
+            }
+            let v = luminance(out, y * w + x);
+            // A NaN is an outlier too.
+            if v.is_nan() || v > OUTLIER_RATIO * max + OUTLIER_FLOOR {
+                found.push((x, y, (v + OUTLIER_FLOOR) / (max + OUTLIER_FLOOR)));
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn the_default_removes_fireflies_and_caustic_noise_from_cycles_crops() {
+    let model = Model::resolve(registry::auto_choice(true)).unwrap();
+    let d = Denoiser::new(model, Options { threads: Some(2), ..Options::default() }).unwrap();
+    let mut failures = Vec::new();
+    for name in CROPS {
+        let reference = FrameBuffers::read(&crop(name, "ref")).unwrap();
+        let reference = [0, 1, 2].map(|c| reference.channel(["R", "G", "B"][c]).unwrap().to_vec());
+        let mut errors = [0f64; 3];
+        for (k, spp) in SPPS.into_iter().enumerate() {
+            let fb = FrameBuffers::read(&crop(name, &format!("{spp:05}spp"))).unwrap();
+            let inputs = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
+            let out = d.denoise(&inputs, &|_| true).unwrap().color;
+            let noisy = relmse(rgb(&inputs.color), rgb(&reference));
+            errors[k] = relmse(rgb(&out), rgb(&reference));
+            let left = outliers(&out, &reference, fb.width());
+            println!("{name} {spp:>2} spp: relMSE {:.4} (noisy {noisy:.4}), outliers {left:?}", errors[k]);
+            if errors[k] >= noisy {
+                failures.push(format!("{name} {spp} spp: relMSE {:.4}, noisy {noisy:.4}", errors[k]));
+            }
+            let allowed = KNOWN_OUTLIERS.iter().find(|g| (g.0, g.1) == (name, spp)).map_or(0, |g| g.2);
+            if left.len() > allowed {
+                failures.push(format!("{name} {spp} spp: {} outliers left (allowed {allowed}): {left:?}", left.len()));
+            }
+        }
+        match KNOWN_GROWTH.iter().find(|g| g.0 == name) {
+            // 5 % slack for the reference's own noise.
+            None if !(errors[1] <= 1.05 * errors[0] && errors[2] <= 1.05 * errors[1]) => {
+                failures.push(format!("{name}: relMSE {errors:?} at 4/16/64 spp does not fall"))
+            }
+            Some((_, known)) if errors.iter().zip(known).any(|(e, k)| *e > 1.05 * k) => {
+                failures.push(format!("{name}: relMSE {errors:?} at 4/16/64 spp, worse than the known {known:?}"))
+            }
+            _ => {}
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn the_outlier_measure_finds_a_firefly_and_passes_the_reference() {
+    // The bound above must catch a kept firefly, or the test above could not fail.
+    let reference = FrameBuffers::read(&crop(CROPS[0], "ref")).unwrap();
+    let mut planes = [0, 1, 2].map(|c| reference.channel(["R", "G", "B"][c]).unwrap().to_vec());
+    assert!(outliers(&planes, &planes, 48).is_empty());
+    let peak = planes.iter().flatten().fold(0f32, |a, &b| a.max(b));
+    for p in &mut planes {
+        p[20 * 48 + 30] = 5.0 * peak + 1.0;
+    }
+    let reference = [0, 1, 2].map(|c| reference.channel(["R", "G", "B"][c]).unwrap().to_vec());
+    assert_eq!(outliers(&planes, &reference, 48).iter().map(|o| (o.0, o.1)).collect::<Vec<_>>(), [(30, 20)]);
+}
