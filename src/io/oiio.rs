@@ -39,6 +39,11 @@ impl SampleFormat {
         }
     }
 
+    /// Bytes of one sample as written to EXR ([`SampleFormat::exr_code`]).
+    pub(crate) fn exr_bytes(self) -> usize {
+        if self == Self::Half { 2 } else { 4 }
+    }
+
     /// Short name for reports.
     pub fn name(self) -> &'static str {
         match self {

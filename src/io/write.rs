@@ -28,9 +28,15 @@ pub struct WriteOptions {
     /// to this while the file is created and put back after, and the pool stays that size
     /// until OpenImageIO next opens an EXR. For processes that own their OpenImageIO (the
     /// CLI), never on a host's behalf. Each thread holds two chunks of rows in flight (a
-    /// 3840-wide file of 44 float channels: about 30 MB each).
+    /// 3840-wide file of 44 float channels: about 30 MB each). Rows too wide for
+    /// OpenImageIO to pass two chunks to OpenEXR at once (over 512 KB: 3840 pixels of
+    /// more than 34 float channels) use one, the pool's only cost there.
     pub encoders: usize,
 }
+
+/// The most bytes of rows OpenImageIO 2.4's EXR writer passes to OpenEXR in one call (it
+/// splits larger writes): a 3840-wide row of 44 float channels is 676 KB, so 24 rows.
+const OIIO_ROWS_BYTES: usize = 16 << 20;
 
 /// Attributes describing the file rather than the image: OpenImageIO sets them itself.
 fn is_file_structure(name: &str) -> bool {
@@ -145,7 +151,14 @@ impl FrameWriter {
             })
             .collect();
         let file = AtomicFile::new(path, opts.no_clobber);
-        let out = Output::create(file.temp_path(), &specs, opts.encoders).map_err(|reason| {
+        // Several encoders need calls of a chunk (16 rows) each, and OpenImageIO hands
+        // OpenEXR at most OIIO_ROWS_BYTES of rows per call whatever it is given: a row
+        // wider than that over 32 rows compresses one chunk at a time whichever the pool.
+        let row_bytes: usize =
+            parts.iter().map(|(_, c)| c.iter().map(|(_, f)| f.exr_bytes()).sum::<usize>()).max().unwrap_or(0)
+                * header.width();
+        let encoders = if 32 * row_bytes > OIIO_ROWS_BYTES { 1 } else { opts.encoders.max(1) };
+        let out = Output::create(file.temp_path(), &specs, encoders).map_err(|reason| {
             IoError::from_oiio(path, reason, |reason| IoError::Write { path: path.into(), reason })
         })?;
         Ok(FrameWriter {
@@ -158,7 +171,7 @@ impl FrameWriter {
             part: 0,
             row: 0,
             scratch: Vec::new(),
-            encoders: opts.encoders.max(1),
+            encoders,
         })
     }
 
