@@ -91,7 +91,7 @@ pub struct DenoiseArgs {
     /// (program, libraries, model, OpenEXR's row buffers for each decoding and encoding
     /// thread, thread stacks, a 64 MB buffer pool; 200-450 MB). Measured peak RSS for a
     /// 1920x1080 frame with 41 channels: 64 -> 858 MB, 512 -> 900, 1024 -> 1428 (one
-    /// band: 1.3x faster); 3840x2160 at the default: 949 MB.
+    /// band: 1.3x faster); 3840x2160 at the default: 906 MB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
