@@ -21,7 +21,7 @@ mod status;
 pub use image::KpcnFormat;
 pub use status::{KpcnStatus, kpcn_last_error, kpcn_status_string};
 
-use crate::denoise::{Bands, Denoisers, FileJob, FileOptions, Options, Progress};
+use crate::denoise::{Bands, Component, Denoisers, FileJob, FileOptions, Options, Progress};
 use crate::io::layout::{KpcnInputs, Layout};
 use crate::io::{NamedImages, WriteOptions};
 use crate::model::{Model, registry};
@@ -126,7 +126,18 @@ struct State {
 unsafe impl Send for State {}
 
 /// Output image names and which part of the result each receives.
-const OUTPUTS: [&str; 3] = ["output", "outputDiffuse", "outputSpecular"];
+const OUTPUTS: [(&str, Component); 3] =
+    [("output", Component::Color), ("outputDiffuse", Component::Diffuse), ("outputSpecular", Component::Specular)];
+
+/// Whether `name` is an output image's.
+fn is_output(name: &str) -> bool {
+    OUTPUTS.iter().any(|(n, _)| *n == name)
+}
+
+/// The output image names, for messages.
+fn output_names() -> String {
+    OUTPUTS.map(|(n, _)| n).join(", ")
+}
 
 /// Live handles by address: a freed, forged or doubly freed handle is found missing here.
 static LIVE: Mutex<Option<HashMap<usize, Arc<KpcnDenoiser>>>> = Mutex::new(None);
@@ -399,14 +410,14 @@ pub unsafe extern "C" fn kpcn_set_image(
     on(d, |s| {
         let name = text(name, "name")?;
         let image = HostImage::new(name, ptr as *mut u8, format, width, height, pixel_byte_stride, row_byte_stride)?;
-        let needs = if OUTPUTS.contains(&name) {
+        let needs = if is_output(name) {
             3
         } else {
             let allowed = NamedImages::channels_of(name).ok_or_else(|| {
                 Failure::invalid(format!(
                     "unknown image `{name}`: inputs are {}; outputs are {}",
                     crate::io::IMAGE_NAMES.join(", "),
-                    OUTPUTS.join(", ")
+                    output_names()
                 ))
             })?;
             allowed[0]
@@ -414,7 +425,7 @@ pub unsafe extern "C" fn kpcn_set_image(
         if image.channels() < needs {
             return Err(Failure::invalid(format!("image `{name}` needs {needs} channels, its format has 1")));
         }
-        let list = if OUTPUTS.contains(&name) { &mut s.outputs } else { &mut s.inputs };
+        let list = if is_output(name) { &mut s.outputs } else { &mut s.inputs };
         list.retain(|(n, _)| n != name);
         list.push((name.to_string(), image));
         Ok(())
@@ -486,7 +497,7 @@ impl State {
             return Err(Failure::state("no input images are set"));
         };
         if self.outputs.is_empty() {
-            return Err(Failure::state(format!("no output image is set (set one of {})", OUTPUTS.join(", "))));
+            return Err(Failure::state(format!("no output image is set (set one of {})", output_names())));
         }
         let (w, h) = (first.width, first.height);
         if let Some((n, i)) = self.inputs.iter().chain(&self.outputs).find(|(_, i)| (i.width, i.height) != (w, h)) {
@@ -502,13 +513,7 @@ impl State {
         let bands = Bands::new(denoiser, w, h, None);
         let copied: usize = self.inputs.iter().map(|(_, i)| i.channels()).sum();
         bands.reserve(denoiser, copied, self.outputs.len() * 3 * w * h * 4)?;
-        let part = |name: &str| -> fn(&crate::denoise::Denoised) -> &[Vec<f32>; 3] {
-            match name {
-                "outputDiffuse" => |d| &d.diffuse,
-                "outputSpecular" => |d| &d.specular,
-                _ => |d| &d.color,
-            }
-        };
+        let component = |name: &str| OUTPUTS.iter().find(|(n, _)| *n == name).map_or(Component::Color, |o| o.1);
         let mut results: Vec<[Vec<f32>; 3]> =
             self.outputs.iter().map(|_| std::array::from_fn(|_| vec![0f32; w * h])).collect();
         let inputs = &self.inputs;
@@ -525,7 +530,7 @@ impl State {
         let outputs = &self.outputs;
         let mut write = |rows: std::ops::Range<usize>, d: crate::denoise::Denoised| -> Result<(), Failure> {
             for ((name, _), result) in outputs.iter().zip(&mut results) {
-                for (r, p) in result.iter_mut().zip(part(name)(&d)) {
+                for (r, p) in result.iter_mut().zip(d.component(component(name))) {
                     r[rows.start * w..rows.end * w].copy_from_slice(p);
                 }
             }

@@ -6,7 +6,7 @@
 //! its inner rows are denoised and written straight after a copy of the input channels.
 //! The result equals denoising the whole frame at once (tested bit for bit).
 
-use super::{Bands, DenoiseError, Denoised, Denoiser, Progress};
+use super::{Bands, Component, DenoiseError, Denoised, Denoiser, Progress};
 use crate::features::{self, FrameStats};
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
@@ -386,10 +386,9 @@ impl FileJob {
 
 /// The layers written: suffix of the layer name and which result it holds. `NAME`, then
 /// with `aovs` `NAME_diffuse` and `NAME_specular`.
-type Layer = (&'static str, fn(&Denoised) -> &[Vec<f32>; 3]);
-
-fn new_layers(aovs: bool) -> &'static [Layer] {
-    const ALL: [Layer; 3] = [("", |d| &d.color), ("_diffuse", |d| &d.diffuse), ("_specular", |d| &d.specular)];
+fn new_layers(aovs: bool) -> &'static [(&'static str, Component)] {
+    const ALL: [(&str, Component); 3] =
+        [("", Component::Color), ("_diffuse", Component::Diffuse), ("_specular", Component::Specular)];
     if aovs { &ALL } else { &ALL[..1] }
 }
 
@@ -400,5 +399,5 @@ fn new_layer_names(layer: &str, aovs: bool) -> Vec<String> {
 
 /// The planes of [`new_layer_names`], in that order.
 fn new_planes(d: &Denoised, aovs: bool) -> Vec<&[f32]> {
-    new_layers(aovs).iter().flat_map(|(_, get)| get(d).iter().map(Vec::as_slice)).collect()
+    new_layers(aovs).iter().flat_map(|(_, c)| d.component(*c).iter().map(Vec::as_slice)).collect()
 }

@@ -100,7 +100,29 @@ pub struct Denoised {
     pub specular: [Vec<f32>; 3],
 }
 
+/// One of a [`Denoised`]'s results, as the outputs that carry it name it (a file's
+/// `NAME`, `NAME_diffuse`, `NAME_specular`; the C ABI's `output`, `outputDiffuse`,
+/// `outputSpecular`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Component {
+    /// The colour.
+    Color,
+    /// Its diffuse part.
+    Diffuse,
+    /// Its specular part (the rest of the colour).
+    Specular,
+}
+
 impl Denoised {
+    /// The planes of `component`.
+    pub fn component(&self, component: Component) -> &[Vec<f32>; 3] {
+        match component {
+            Component::Color => &self.color,
+            Component::Diffuse => &self.diffuse,
+            Component::Specular => &self.specular,
+        }
+    }
+
     /// Adds what the beauty held beyond diffuse + specular, undenoised, to the specular
     /// (as Cycles' specular, the beauty minus the diffuse, holds emission) and so to the
     /// colour, which stays exactly diffuse + specular.
