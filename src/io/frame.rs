@@ -246,10 +246,9 @@ pub struct PartLayout {
 /// allows can be processed in pieces (`kpcn denoise` streams this way).
 pub struct FrameReader {
     input: Input,
-    /// More handles on the same file, opened on first use, that decode other rows of a
-    /// read at the same time ([`FrameReader::set_decoders`]).
+    /// More handles on the same file that decode other rows of a read at the same time
+    /// ([`FrameReader::set_decoders`]).
     more: Vec<Input>,
-    decoders: usize,
     header: FrameBuffers,
     channels: Vec<ChannelRef>,
     /// Per subimage: tile height (0 for scanline files) and data-window origin y.
@@ -333,7 +332,7 @@ impl FrameReader {
             subimages.push(info);
             part_names.push(part);
         }
-        Ok(FrameReader { input, more: Vec::new(), decoders: 1, header, channels, subimages, part_names })
+        Ok(FrameReader { input, more: Vec::new(), header, channels, subimages, part_names })
     }
 
     /// Decodes each read on `n` threads, each with its own handle on the file (opened
@@ -343,9 +342,9 @@ impl FrameReader {
     /// rows (a 3840-wide file of 41 float channels: about 30 MB), far less than OpenEXR's
     /// own pool keeps. 1 by default.
     pub fn set_decoders(&mut self, n: usize) -> Result<(), IoError> {
-        self.decoders = n.max(1);
         let path = self.header.display_path();
-        while self.more.len() + 1 < self.decoders {
+        self.more.truncate(n.saturating_sub(1));
+        while self.more.len() + 1 < n {
             let handle = Input::open(&path).map_err(|reason| {
                 IoError::from_oiio(&path, reason, |reason| IoError::Open { path: path.clone(), reason })
             })?;
@@ -440,7 +439,7 @@ impl FrameReader {
                 IoError::from_oiio(&path, reason, |reason| IoError::Read { path: path.clone(), subimage: s, reason })
             };
             // A handle per decoder, for reads long enough to share (a chunk each at least).
-            let decoders = self.decoders.min((y1 - y0).div_ceil(DECODER_ROWS)).max(1);
+            let decoders = (self.more.len() + 1).min((y1 - y0).div_ceil(DECODER_ROWS)).max(1);
             let mut handles: Vec<&mut Input> = std::iter::once(&mut self.input).chain(&mut self.more).collect();
             handles.truncate(decoders);
             let mut planes = read_planes(&mut handles, s, info, y0, y1, &unique).map_err(read_err)?;
