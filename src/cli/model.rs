@@ -39,8 +39,11 @@ pub enum ModelAction {
         /// Model name or file.
         model: String,
         /// The clamp: `hard` (the excess is lost), `spread` (shared over the 3×3
-        /// neighbourhood) or `coarse` (averaged into the coarsest scale).
-        #[arg(long, value_enum, value_name = "hard|spread|coarse")]
+        /// neighbourhood), `coarse` (averaged into the coarsest scale), `fine` (full
+        /// resolution only; the coarser scales pool the unclamped colour), `fine-pairs` (as
+        /// fine, to the second-brightest neighbour: what ships) or `fine-pairs-twice`
+        /// (fine-pairs run twice: clusters of three go too).
+        #[arg(long, value_enum, value_name = "CLAMP")]
         clamp: Clamp,
         /// Output file (.safetensors).
         #[arg(short, long)]
@@ -127,6 +130,7 @@ pub fn describe(m: &Model) {
                 Clamp::Coarse => "coarse (the excess averaged into the coarsest scale)",
                 Clamp::Fine => "fine (full resolution only; coarser scales pool the unclamped colour)",
                 Clamp::FinePairs => "fine-pairs (as fine, to the second-brightest neighbour)",
+                Clamp::FinePairsTwice => "fine-pairs-twice (fine-pairs applied twice: clusters of three go)",
             };
             println!("  firefly clamp {clamp}");
             let specular = match a.specular {

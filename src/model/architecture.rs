@@ -228,6 +228,9 @@ pub enum Clamp {
     /// As `Fine`, clamped to the second-brightest neighbour: pairs of fireflies go too,
     /// while a line one pixel wide keeps all but its ends.
     FinePairs,
+    /// `FinePairs` twice: a cluster of three (a diagonal, an L) goes too, since its ends
+    /// go first; a line one pixel wide loses two pixels at each end.
+    FinePairsTwice,
 }
 
 impl Clamp {
@@ -239,6 +242,7 @@ impl Clamp {
             Clamp::Coarse => "coarse",
             Clamp::Fine => "fine",
             Clamp::FinePairs => "fine-pairs",
+            Clamp::FinePairsTwice => "fine-pairs-twice",
         }
     }
 }

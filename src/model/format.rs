@@ -73,6 +73,7 @@ impl Architecture {
                 Some("coarse") => Clamp::Coarse,
                 Some("fine") => Clamp::Fine,
                 Some("fine-pairs") => Clamp::FinePairs,
+                Some("fine-pairs-twice") => Clamp::FinePairsTwice,
                 Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
             },
             // Files from before the choice were trained on the files' variances.

@@ -136,7 +136,8 @@ pub fn receptive_radius(a: &Architecture) -> usize {
 /// What the clamp removes is lost ([`Clamp::Hard`]), shared over the 3×3 neighbourhood
 /// ([`Clamp::Spread`]), averaged into the coarsest scale ([`Clamp::Coarse`]), or kept in
 /// every coarser scale, which pool the unclamped colour ([`Clamp::Fine`]; with
-/// [`Clamp::FinePairs`] clamped to the second-brightest neighbour): smooth regions draw
+/// [`Clamp::FinePairs`] clamped to the second-brightest neighbour, once or, with
+/// [`Clamp::FinePairsTwice`], twice): smooth regions draw
 /// from those, so there the energy stays without a speck. (Mid-means instead of
 /// averages also stop 2-pixel fireflies, but their downward bias on skewed low-sample
 /// noise cost more than they saved: measured on held-out simulator frames.)
@@ -149,9 +150,12 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
             let excess = noisy.minus(&clamped);
             (clamped, Some(excess))
         }
-        Clamp::Fine | Clamp::FinePairs => {
-            let clamped =
-                if clamp == Clamp::Fine { noisy.clamp_to_neighbours() } else { noisy.clamp_to_second_neighbour() };
+        Clamp::Fine | Clamp::FinePairs | Clamp::FinePairsTwice => {
+            let clamped = match clamp {
+                Clamp::Fine => noisy.clamp_to_neighbours(),
+                Clamp::FinePairs => noisy.clamp_to_second_neighbour(),
+                _ => noisy.clamp_to_second_neighbour().clamp_to_second_neighbour(),
+            };
             let mut colour = vec![clamped];
             if levels > 1 {
                 colour.push(noisy.avg_pool2());
@@ -360,6 +364,27 @@ mod tests {
         assert_eq!((single.data[3 * w + 4], single.data[3 * w + 5]), (1e3, 1e3));
         assert_eq!((pairs.data[3 * w + 4], pairs.data[3 * w + 5]), (0.25, 0.25));
         assert_eq!(pairs.data[6 * w + 8], 2.0, "a line's middle stays");
+    }
+
+    #[test]
+    fn a_diagonal_triple_of_fireflies_goes_only_with_the_pairs_clamp_twice() {
+        // The middle of three on a diagonal has two of them as neighbours: `fine-pairs`
+        // keeps it (a Cycles caustic at 4 spp, tests/cycles_crops.rs); run twice, the ends
+        // go first, then the middle. A line seven pixels long keeps its middle three.
+        let (w, h) = (14, 10);
+        let mut x = vec![0.25f32; 3 * w * h];
+        for d in 0..3 {
+            x[(2 + d) * w + 3 + d] = 1e3;
+        }
+        for c in 4..11 {
+            x[8 * w + c] = 2.0;
+        }
+        let level0 = |clamp| colour_pyramid(Planes::from_vec(3, w, h, x.clone()), 2, clamp).swap_remove(0);
+        let (pairs, twice) = (level0(Clamp::FinePairs), level0(Clamp::FinePairsTwice));
+        assert_eq!(pairs.data[3 * w + 4], 1e3, "fine-pairs keeps the middle");
+        assert!((0..3).all(|d| twice.data[(2 + d) * w + 3 + d] == 0.25), "twice, none stays");
+        assert!((6..9).all(|c| twice.data[8 * w + c] == 2.0), "a line's middle stays");
+        assert!([4, 5, 9, 10].iter().all(|&c| twice.data[8 * w + c] < 2.0), "its two end pixels each side go");
     }
 
     #[test]
