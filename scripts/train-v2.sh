@@ -43,6 +43,7 @@
 # and `compact` is WORK/compact-auto/model.safetensors as it is (f32); then each gets the
 # firefly clamp chosen on our Cycles corpus (models/README.md):
 #   kpcn model clamp models/MODEL.safetensors --clamp fine-pairs -o models/MODEL.safetensors
+# (`balanced`: --clamp fine-pairs-twice).
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -41,8 +41,8 @@ pub enum ModelAction {
         /// The clamp: `hard` (the excess is lost), `spread` (shared over the 3×3
         /// neighbourhood), `coarse` (averaged into the coarsest scale), `fine` (full
         /// resolution only; the coarser scales pool the unclamped colour), `fine-pairs` (as
-        /// fine, to the second-brightest neighbour: what ships) or `fine-pairs-twice`
-        /// (fine-pairs run twice: clusters of three go too).
+        /// fine, to the second-brightest neighbour) or `fine-pairs-twice` (fine-pairs run
+        /// twice: clusters of three go too). `kpcn model info` shows a model's.
         #[arg(long, value_enum, value_name = "CLAMP")]
         clamp: Clamp,
         /// Output file (.safetensors).

@@ -237,13 +237,10 @@ mod tests {
             let m = Model::resolve(q.name()).unwrap();
             // The presets see raw radiance; `balanced` was fine-tuned auto-exposed.
             let exposure = if q == Quality::Balanced { Exposure::Auto } else { Exposure::Raw };
-            // Trained with the preset's clamp, shipped with `fine-pairs` (`kpcn model clamp`).
-            assert_eq!(
-                m.arch,
-                Architecture { exposure, clamp: Clamp::FinePairs, ..Architecture::ladder(q) },
-                "{}",
-                q.name()
-            );
+            // Trained with the preset's clamp, shipped with `fine-pairs` (`kpcn model clamp`),
+            // the default with `fine-pairs-twice`.
+            let clamp = if q == Quality::Balanced { Clamp::FinePairsTwice } else { Clamp::FinePairs };
+            assert_eq!(m.arch, Architecture { exposure, clamp, ..Architecture::ladder(q) }, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }
     }
