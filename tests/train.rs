@@ -26,6 +26,11 @@ fn dataset(dir: &Path) {
         "16",
         "--resolution",
         "32x24",
+        // The simulator's original sampling: this test is about training, not sampling.
+        "--pixel-filter",
+        "box",
+        "--sampler",
+        "random",
         "-q",
         "-o",
         dir.to_str().unwrap(),

@@ -33,7 +33,9 @@ pub struct SamplingArgs {
     #[arg(long, default_value = "blackman-harris", value_parser = PixelFilter::parse, value_name = "FILTER")]
     pub pixel_filter: PixelFilter,
     /// Sample placement: `sobol` (scrambled low-discrepancy points, like production
-    /// renderers) or `random` (independent samples).
+    /// renderers, in 4 independent scrambles per pixel, whose spread gives the written
+    /// variances) or `random` (independent samples, like the Cycles layout's independent
+    /// 1-spp renders). Either way the variances match the frames' real error.
     #[arg(long, default_value = "sobol", value_parser = parse_sampler, value_name = "SAMPLER")]
     pub sampler: Sampler,
     /// Worker threads (default: all cores).

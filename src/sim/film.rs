@@ -3,6 +3,7 @@
 //! the layered frames of ARCHITECTURE.md §Layout.
 
 use super::integrator::{ALBEDO, COLOR, DEPTH, DIFFUSE, NORMAL, SAMPLE_LEN, SPECULAR, VISIBILITY};
+use super::rng::{SCRAMBLES, Sampler, scramble_of};
 use crate::io::{Attribute, FrameBuffers, IoError, SampleFormat};
 
 /// Quantities: (layer, offset into a sample, components).
@@ -120,23 +121,31 @@ pub struct Snapshot {
     pub variance: [f32; 7],
 }
 
-/// Welford accumulator over one pixel's samples.
+/// Welford accumulator over one pixel's samples, and with the Sobol' sampler the sums of
+/// each of its [`SCRAMBLES`] (samples arrive in order: sample `n` is scramble
+/// [`scramble_of`]`(n)`).
 #[derive(Clone)]
 pub struct PixelStats {
     n: u64,
     mean: [f64; SAMPLE_LEN],
     m2: [f64; SAMPLE_LEN],
-}
-
-impl Default for PixelStats {
-    fn default() -> Self {
-        PixelStats { n: 0, mean: [0.0; SAMPLE_LEN], m2: [0.0; SAMPLE_LEN] }
-    }
+    scrambles: Option<[[f64; SAMPLE_LEN]; SCRAMBLES as usize]>,
 }
 
 impl PixelStats {
-    /// Adds one sample.
+    /// An empty accumulator for samples placed by `sampler`.
+    pub fn new(sampler: Sampler) -> PixelStats {
+        let scrambles = (sampler == Sampler::Sobol).then_some([[0.0; SAMPLE_LEN]; SCRAMBLES as usize]);
+        PixelStats { n: 0, mean: [0.0; SAMPLE_LEN], m2: [0.0; SAMPLE_LEN], scrambles }
+    }
+
+    /// Adds the next sample.
     pub fn add(&mut self, s: &[f32; SAMPLE_LEN]) {
+        if let Some(sums) = self.scrambles.as_mut() {
+            for (sum, &x) in sums[scramble_of(self.n as u32) as usize].iter_mut().zip(s) {
+                *sum += x as f64;
+            }
+        }
         self.n += 1;
         let inv = 1.0 / self.n as f64;
         for ((&x, mean), m2) in s.iter().zip(&mut self.mean).zip(&mut self.m2) {
@@ -147,20 +156,37 @@ impl PixelStats {
         }
     }
 
-    /// Means and variances of the mean so far.
+    /// Means and variances of the mean so far. Independent samples (`random`): the sample
+    /// variance over `n`. Sobol': the spread of the scrambles' means, which are independent
+    /// where the points within one are not (with a sample count the scrambles do not share
+    /// evenly, the former).
     pub fn snapshot(&self) -> Snapshot {
         let mut snap = Snapshot { mean: [0.0; SAMPLE_LEN], variance: [0.0; 7] };
         for (out, m) in snap.mean.iter_mut().zip(&self.mean) {
             *out = *m as f32;
         }
-        if self.n > 1 {
-            let k = 1.0 / ((self.n - 1) as f64 * self.n as f64);
-            for (q, (_, off, comps)) in QUANTITIES.iter().enumerate() {
-                let v: f64 = (0..*comps).map(|c| self.m2[off + c] * k).sum::<f64>() / *comps as f64;
-                snap.variance[q] = v as f32;
-            }
+        if self.n < 2 {
+            return snap;
+        }
+        for (q, (_, off, comps)) in QUANTITIES.iter().enumerate() {
+            let v: f64 = (0..*comps).map(|c| self.variance_of_mean(off + c)).sum::<f64>() / *comps as f64;
+            snap.variance[q] = v as f32;
         }
         snap
+    }
+
+    /// The variance of value `ch`'s mean over the samples so far (at least two).
+    fn variance_of_mean(&self, ch: usize) -> f64 {
+        let g = self.n.min(SCRAMBLES as u64);
+        match &self.scrambles {
+            Some(sums) if self.n.is_multiple_of(g) => {
+                let per = (self.n / g) as f64;
+                let means = sums[..g as usize].iter().map(|s| s[ch] / per);
+                let m = means.clone().sum::<f64>() / g as f64;
+                means.map(|x| (x - m) * (x - m)).sum::<f64>() / (g * (g - 1)) as f64
+            }
+            _ => self.m2[ch] / ((self.n - 1) as f64 * self.n as f64),
+        }
     }
 }
 

@@ -102,7 +102,7 @@ pub fn render(
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
                     let pixel = (y * w + x) as u64;
-                    let mut stats = PixelStats::default();
+                    let mut stats = PixelStats::new(opts.sampler);
                     let mut snaps = Vec::with_capacity(counts.len());
                     for s in 0..max_spp {
                         let mut rng = rng::Rng::for_pixel_sample(opts.sampler, opts.sample_seed, pixel, s);

@@ -26,12 +26,16 @@ impl Rng {
     }
 
     /// The numbers of one sample of one pixel under `sampler`. With [`Sampler::Sobol`] the
-    /// pixel's samples are the points of one scrambled sequence, in order.
+    /// pixel's samples are the points of [`SCRAMBLES`] independently scrambled sequences,
+    /// interleaved: sample `s` is point `s / SCRAMBLES` of scramble `s % SCRAMBLES`
+    /// ([`scramble_of`]).
     pub fn for_pixel_sample(sampler: Sampler, seed: u64, pixel: u64, sample: u32) -> Self {
         let mut r = Rng::for_sample(seed, pixel, sample as u64);
         if sampler == Sampler::Sobol {
-            let pixel_seed = mix(mix(seed ^ 0x50B0_1D00) ^ pixel.wrapping_mul(0xD6E8_FEB8_6659_FD93));
-            r.sobol = Some(Sobol { index: sample, seed: pixel_seed, dim: 0 });
+            let scramble = scramble_of(sample) as u64;
+            let pixel_seed = mix(mix(seed ^ 0x50B0_1D00 ^ scramble.wrapping_mul(0x2545_F491_4F6C_DD1D))
+                ^ pixel.wrapping_mul(0xD6E8_FEB8_6659_FD93));
+            r.sobol = Some(Sobol { index: sample / SCRAMBLES, seed: pixel_seed, dim: 0 });
         }
         r
     }
@@ -79,7 +83,8 @@ pub enum Sampler {
     /// Owen-scrambled Sobol' points, padded per dimension pair, for the first
     /// [`SOBOL_DIMENSIONS`] dimensions of a path, then independent streams (the kind of
     /// low-discrepancy sampler production renderers use: Cycles' Sobol-Burley, pbrt's
-    /// padded Sobol'). A pixel's first 2ᵏ samples stratify every pair of dimensions.
+    /// padded Sobol'), in [`SCRAMBLES`] independent scrambles per pixel, interleaved: each
+    /// scramble's first 2ᵏ points stratify every pair of dimensions.
     Sobol,
 }
 
@@ -91,6 +96,18 @@ impl Sampler {
             Sampler::Sobol => "sobol",
         }
     }
+}
+
+/// Independent scrambles of a pixel's Sobol' samples. The points of one scramble are
+/// correlated by design (stratified), so their sample variance overstates the error of
+/// their mean (2–10× in our scenes); the means of independent scrambles are independent,
+/// and their spread is an honest estimate of it (`film::PixelStats`). Four: 3 degrees of
+/// freedom per pixel, and each scramble still stratifies 2ᵏ⁻² of a pixel's 2ᵏ samples.
+pub const SCRAMBLES: u32 = 4;
+
+/// Which of a pixel's [`SCRAMBLES`] a Sobol' sample comes from.
+pub fn scramble_of(sample: u32) -> u32 {
+    sample % SCRAMBLES
 }
 
 /// Dimensions of a path drawn from Sobol' points before the independent streams take over:
@@ -151,14 +168,15 @@ fn nested_uniform_scramble(x: u32, seed: u32) -> u32 {
 mod tests {
     use super::*;
 
-    fn points(pixel: u64, n: u32) -> Vec<[f32; 2]> {
-        (0..n).map(|s| Rng::for_pixel_sample(Sampler::Sobol, 7, pixel, s).uniform2()).collect()
+    /// The first `n` points of a pixel's scramble `scramble`.
+    fn points(pixel: u64, scramble: u32, n: u32) -> Vec<[f32; 2]> {
+        (0..n).map(|i| Rng::for_pixel_sample(Sampler::Sobol, 7, pixel, i * SCRAMBLES + scramble).uniform2()).collect()
     }
 
     #[test]
     fn sobol_pairs_are_stratified_in_2d_and_1d() {
-        for pixel in [0, 1, 12345] {
-            let p = points(pixel, 16);
+        for (pixel, scramble) in [(0, 0), (1, 3), (12345, 2)] {
+            let p = points(pixel, scramble, 16);
             let mut cells = [0u32; 16];
             let (mut xs, mut ys) = ([0u32; 16], [0u32; 16]);
             for [x, y] in &p {
@@ -169,7 +187,10 @@ mod tests {
             assert!(cells.iter().all(|&c| c == 1), "pixel {pixel}: {cells:?}");
             assert!(xs.iter().chain(&ys).all(|&c| c == 1), "pixel {pixel}: {xs:?} {ys:?}");
         }
-        assert_ne!(points(0, 4), points(1, 4), "pixels are scrambled independently");
+        assert_ne!(points(0, 0, 4), points(1, 0, 4), "pixels are scrambled independently");
+        assert_ne!(points(0, 0, 4), points(0, 1, 4), "and so are a pixel's scrambles");
+        let interleaved: Vec<u32> = (0..8).map(scramble_of).collect();
+        assert_eq!(interleaved, [0, 1, 2, 3, 0, 1, 2, 3], "every 4 samples visit every scramble");
     }
 
     #[test]
@@ -178,8 +199,8 @@ mod tests {
         let mut sum = 0f64;
         for pixel in 0..64u64 {
             let mut xs = [0u32; 8];
-            for s in 0..8 {
-                let mut r = Rng::for_pixel_sample(Sampler::Sobol, 3, pixel, s);
+            for i in 0..8 {
+                let mut r = Rng::for_pixel_sample(Sampler::Sobol, 3, pixel, i * SCRAMBLES + 1);
                 r.uniform2();
                 r.uniform();
                 r.uniform2();
