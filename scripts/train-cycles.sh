@@ -4,21 +4,23 @@
 # mod 5) is held out for validation, as benches/quality_corpus.sh scores it; the team's
 # dev set is never read.
 #
-#   scripts/train-cycles.sh CORPUS SCENES [MODEL]   # the corpus's first SCENES scenes
+#   scripts/train-cycles.sh CORPUS SCENES [MODEL]   # SCENES: N, the corpus's first N
+#                                                   # scenes, or A-B, seeds A to B−1
 #                                                   # (default model: balanced)
 #   KPCN_WORK=DIR                                   # work folder (default ./train-cycles/ft)
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M                # segment length (default 3000 + 500)
 #   KPCN_LR=R KPCN_LR2=R2                           # learning rates (default 5e-5, 2e-5)
 #   KPCN_MAX_FLOOR=F                                # leave out scenes whose reference is
 #                                                   # noisier than relMSE F (default 0.03)
+#   KPCN_LOSS=L                                     # kpcn train --loss (default relative)
 #
 # Steps, each skipped when done and resumed when interrupted:
-#   1. a frozen snapshot of the corpus's manifest (its first SCENES scenes, less those whose
+#   1. a frozen snapshot of the corpus's manifest (its SCENES, less those whose
 #      512-spp reference is itself noisy: corpus.jsonl's reference_relmse_floor above
 #      KPCN_MAX_FLOOR, night scenes lit by tiny lights, where a reference firefly would be
 #      taught as light), so that a corpus still rendering does not change the data under a
 #      resumed run; every 5th of its scenes by name is validation (`--holdout 5`);
-#   2. one segment from MODEL's weights: --loss relative --augment, batch 4, 96-px patches,
+#   2. one segment from MODEL's weights: --loss relative (KPCN_LOSS) --augment, batch 4, 96-px patches,
 #      lr 5e-5 / 2e-5 cosine (KPCN_LR, KPCN_LR2), validation every 250 steps (the learning
 #      curve in log.csv).
 # Then benches/quality_corpus.sh WORK/data MODEL WORK/run/model.safetensors scores it against
@@ -28,6 +30,10 @@ cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
 scenes=${2:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
 model=${3:-balanced}
+case $scenes in
+    *-*) first=${scenes%-*} end=${scenes#*-} ;;
+    *) first=0 end=$scenes ;;
+esac
 work=${KPCN_WORK:-train-cycles/ft}
 mkdir -p "$work"
 
@@ -49,13 +55,13 @@ for line in open(sys.argv[1]):
     d = json.loads(line)
     if d.get("reference_relmse_floor", 0) > float(sys.argv[2]):
         print(d["scene"])' "$corpus/corpus.jsonl" "${KPCN_MAX_FLOOR:-0.03}" | tr '\n' ' ')
-    found=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v n="$scenes" '$3 < n' | cut -d, -f1 | sort -u | wc -l)
-    [ "$found" -eq "$scenes" ] || { echo "train-cycles: $corpus has $found of the first $scenes scenes" >&2; exit 1; }
+    found=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" '$3 >= a && $3 < b' | cut -d, -f1 | sort -u | wc -l)
+    [ "$found" -eq $((end - first)) ] || { echo "train-cycles: $corpus has $found of the scenes $first to $((end - 1))" >&2; exit 1; }
     {
         head -1 "$corpus/manifest.csv"
-        tail -n +2 "$corpus/manifest.csv" | awk -F, -v n="$scenes" -v rel="$rel" -v noisy="$noisy" '
+        tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" -v rel="$rel" -v noisy="$noisy" '
             BEGIN { OFS = ","; split(noisy, l, " "); for (i in l) skip[l[i]] = 1 }
-            $3 < n && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+            $3 >= a && $3 < b && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
     } >"$data/manifest.partial"
     echo "train-cycles: left out for noisy references: ${noisy:-none}"
     mv "$data/manifest.partial" "$data/manifest.csv"
@@ -75,6 +81,6 @@ start=(--init "$(
 [ -f "$run/checkpoint.safetensors" ] && start=(--resume)
 nice -n 19 "$kpcn" train --data "$data" -o "$run" "${start[@]}" --holdout 5 \
     --steps "${KPCN_STEPS:-3000}" --phase2-steps "${KPCN_PHASE2_STEPS:-500}" --batch 4 --patch 96 \
-    --lr "${KPCN_LR:-5e-5}" --lr-phase2 "${KPCN_LR2:-2e-5}" --schedule cosine --loss relative --augment \
+    --lr "${KPCN_LR:-5e-5}" --lr-phase2 "${KPCN_LR2:-2e-5}" --schedule cosine --loss "${KPCN_LOSS:-relative}" --augment \
     --checkpoint-every 200 --validate-every 250 -q
 echo "$run/model.safetensors (log: $run/log.csv)"

@@ -15,7 +15,7 @@
 #
 # Then, to ship (f16 weights; the firefly clamp chosen on our Cycles corpus, models/README.md):
 #   kpcn model half WORK/RUNG/model.safetensors -o models/RUNG.safetensors
-#   kpcn model clamp models/RUNG.safetensors --clamp fine-pairs -o models/RUNG.safetensors
+#   kpcn model clamp models/RUNG.safetensors --clamp fine-pairs-twice -o models/RUNG.safetensors
 # (models/balanced-spatial.safetensors: KPCN_VARIANCES=spatial scripts/train-ladder.sh balanced)
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail

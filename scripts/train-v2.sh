@@ -21,7 +21,8 @@
 #      minimised by the mean, so the noisier 512-spp slit references still pull the right
 #      way), all 320x180 and sampled as Cycles samples (Blackman-Harris 1.5 px, scrambled
 #      Sobol'): 78 scenes, 312 frames. About 25 min on 2 cores; `kpcn dataset` resumes
-#      where it stopped;
+#      where it stopped. The shipped models' data came from the sampler before it took
+#      four scrambles per pixel (a checkout of 1c20f7d renders it; models/README.md);
 #   3. segment 1, from step 1's weights: --loss relative, --augment (8 orientations),
 #      8,000 + 2,000 steps, cosine schedule, lr 2e-4 / 5e-5, batch 4, 96-px patches
 #      (WORK/RUNG, about 33 min; models/segments/balanced-v2.safetensors);
@@ -42,8 +43,7 @@
 #   kpcn model half WORK/balanced-auto/model.safetensors -o models/balanced.safetensors
 # and `compact` is WORK/compact-auto/model.safetensors as it is (f32); then each gets the
 # firefly clamp chosen on our Cycles corpus (models/README.md):
-#   kpcn model clamp models/MODEL.safetensors --clamp fine-pairs -o models/MODEL.safetensors
-# (`balanced`: --clamp fine-pairs-twice).
+#   kpcn model clamp models/MODEL.safetensors --clamp fine-pairs-twice -o models/MODEL.safetensors
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."

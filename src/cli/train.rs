@@ -78,9 +78,11 @@ pub struct TrainArgs {
     /// --resume.
     #[arg(long, value_enum, default_value_t = Schedule::Constant)]
     pub schedule: Schedule,
-    /// Loss: `l1` (Bako et al.: L1 on each branch's transformed target, then on the colour)
-    /// or `relative` (relMSE with the prediction as its denominator, which seeks the mean
-    /// and so keeps brightness, plus L1 on tonemapped radiance). Give it again with --resume.
+    /// Loss: `l1` (Bako et al.: L1 on each branch's transformed target, then on the colour),
+    /// `relative` (relMSE with the prediction as its denominator, which seeks the mean and
+    /// so keeps brightness, plus L1 on tonemapped radiance) or `relmse` (the same with the
+    /// reference as denominator, as the evaluator scores: for clean references, since noise
+    /// in them pulls it dark). Give it again with --resume.
     #[arg(long, value_enum, default_value_t = Loss::L1)]
     pub loss: Loss,
     /// Show each patch mirrored and/or transposed at random (8 orientations), so the

@@ -14,8 +14,28 @@ pub fn l1(a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
 /// mean of the plausible references, not by a value biased dark (as with y² in the
 /// denominator) or by their median (as with L1).
 pub fn relative_l2(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let den = (x.detach().sqr()? + 0.01)?;
-    Ok(((x - y)?.sqr()? / den)?.mean_all()?)
+    relative_to(x, y, &x.detach())
+}
+
+/// `(x − y)² / (d² + 0.01)`, averaged: the relative squared error with denominator `d`.
+fn relative_to(x: &Tensor, y: &Tensor, d: &Tensor) -> Result<Tensor, ModelError> {
+    Ok(((x - y)?.sqr()? / (d.sqr()? + 0.01)?)?.mean_all()?)
+}
+
+/// Relative squared error `(x − y)² / (y² + 0.01)` with the reference as its denominator:
+/// the relMSE the evaluator reports, so a too-bright blotch on a dark background costs what
+/// it costs there (with the prediction as denominator it costs `(y² + 0.01) / (x² + 0.01)`
+/// of that). Pulled dark by noise in `y` (the test below): for clean references only.
+pub fn relmse(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    relative_to(x, y, y)
+}
+
+/// Relative squared error `(x − y)² / (min(sg(x), y)² + 0.01)`: each error charged at
+/// least what the evaluator charges ([`relmse`]) and what the prediction's denominator
+/// charges ([`relative_l2`]): a bright blotch on a dark background by the reference, light
+/// missing from a bright pixel by the prediction, so noise in `y` pulls it neither way much.
+pub fn relative_smaller(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    relative_to(x, y, &x.detach().minimum(y)?)
 }
 
 /// L1 between tonemapped radiances, ln(1 + max(v, 0)): keeps the shadows' and the
@@ -36,25 +56,45 @@ pub enum Loss {
     /// mean) plus L1 on tonemapped radiance, on the irradiance and the specular radiance in
     /// phase 1, on the recomposed colour in phase 2.
     Relative,
+    /// relMSE with the reference as its denominator (the evaluator's measure) plus L1 on
+    /// tonemapped radiance, where `relative` has the prediction's: for data whose
+    /// references are clean (biased dark on noisy ones).
+    Relmse,
+    /// relMSE with the smaller of the prediction (gradient stopped) and the reference as
+    /// its denominator plus L1 on tonemapped radiance.
+    RelativeSmaller,
 }
 
+/// A loss term of a prediction against its target.
+type Term = fn(&Tensor, &Tensor) -> Result<Tensor, ModelError>;
+
 impl Loss {
+    /// The relative term, for the losses that have one.
+    fn relative(self) -> Option<Term> {
+        match self {
+            Loss::L1 => None,
+            Loss::Relative => Some(relative_l2),
+            Loss::Relmse => Some(relmse),
+            Loss::RelativeSmaller => Some(relative_smaller),
+        }
+    }
+
     /// The loss of a prediction of linear radiance (the irradiance, the colour).
     pub fn radiance(self, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-        match self {
-            Loss::L1 => l1(x, y),
-            Loss::Relative => Ok((relative_l2(x, y)? + tonemapped_l1(x, y)?)?),
+        match self.relative() {
+            None => l1(x, y),
+            Some(relative) => Ok((relative(x, y)? + tonemapped_l1(x, y)?)?),
         }
     }
 
     /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
     pub fn specular(self, domain: Specular, s_hat: &Tensor, target_log: &Tensor) -> Result<Tensor, ModelError> {
         let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
-        match self {
-            Loss::L1 => Ok(log),
-            Loss::Relative => {
+        match self.relative() {
+            None => Ok(log),
+            Some(relative) => {
                 let target = (target_log.exp()? - 1.0)?;
-                Ok((relative_l2(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
+                Ok((relative(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
             }
         }
     }
@@ -112,21 +152,44 @@ mod tests {
         // 0.008 on 16-sample ones). The tonemapped L1 term pulls toward the targets'
         // median: the whole loss lands +0.2 % off on 512-sample targets, +2.8 % on 16.
         let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y);
-        let target_denominator = |x: &Tensor, y: &Tensor| -> Result<Tensor, ModelError> {
-            Ok(((x - y)?.sqr()? / (y.sqr()? + 0.01)?)?.mean_all()?)
-        };
         for (n, full_bias) in [(512, 0.01), (16, 0.05)] {
             let ys = noisy_targets(n, 0.05, 4000);
             let mean = ys.iter().map(|&v| v as f64).sum::<f64>() / ys.len() as f64;
             let relative = converges_to(relative_l2, &ys) as f64;
             assert!((relative / mean - 1.0).abs() < 1e-3, "{n} samples: relative L2 → {relative}, mean {mean}");
             let whole = converges_to(full, &ys) as f64;
-            let biased = converges_to(target_denominator, &ys) as f64;
+            let biased = converges_to(relmse, &ys) as f64;
             println!(
                 "{n} samples per target: mean {mean:.4}; relative L2 → {relative:.4}, whole loss → {whole:.4}, the target as denominator → {biased:.4}"
             );
             assert!((whole / mean - 1.0).abs() < full_bias, "{n} samples: the whole loss → {whole}, mean {mean}");
             assert!(biased < 0.95 * mean, "{n} samples: the target as denominator → {biased}, mean {mean}");
+        }
+    }
+
+    /// `loss` of a one-pixel prediction `x` against `y`.
+    fn at(loss: Term, x: f32, y: f32) -> f32 {
+        let t = |v: f32| Tensor::new(&[v], &Device::Cpu).unwrap();
+        scalar(&loss(&t(x), &t(y)).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn relmse_charges_a_bright_blotch_on_a_dark_background_what_the_evaluator_does() {
+        // Reference 0.08 (a shadow beside a sunlit floor), prediction 0.7 (light bled in).
+        let evaluator = (0.7f32 - 0.08).powi(2) / (0.08f32.powi(2) + 0.01);
+        assert!((at(relmse, 0.7, 0.08) / evaluator - 1.0).abs() < 1e-5);
+        // The prediction as denominator charges 1/30 of it: such blotches are cheap to learn.
+        let cheap = at(relative_l2, 0.7, 0.08);
+        assert!(cheap * 25.0 < evaluator, "{cheap} against {evaluator}");
+    }
+
+    #[test]
+    fn relative_smaller_charges_each_error_at_least_what_both_others_do() {
+        // Too bright on a dark reference, then light missing from a bright one.
+        for (x, y) in [(0.7, 0.08), (0.08, 0.7)] {
+            let smaller = at(relative_smaller, x, y);
+            let most = at(relmse, x, y).max(at(relative_l2, x, y));
+            assert!((smaller / most - 1.0).abs() < 1e-5, "x {x}, y {y}: {smaller} against {most}");
         }
     }
 
