@@ -13,6 +13,8 @@
 #   KPCN_MAX_FLOOR=F                                # leave out scenes whose reference is
 #                                                   # noisier than relMSE F (default 0.03)
 #   KPCN_LOSS=L                                     # kpcn train --loss (default relative)
+#   KPCN_TRAIN_ARGS="..."                           # more `kpcn train` options, e.g.
+#                                                   # --fireflies
 #
 # Steps, each skipped when done and resumed when interrupted:
 #   1. a frozen snapshot of the corpus's manifest (its SCENES, less those whose
@@ -82,5 +84,5 @@ start=(--init "$(
 nice -n 19 "$kpcn" train --data "$data" -o "$run" "${start[@]}" --holdout 5 \
     --steps "${KPCN_STEPS:-3000}" --phase2-steps "${KPCN_PHASE2_STEPS:-500}" --batch 4 --patch 96 \
     --lr "${KPCN_LR:-5e-5}" --lr-phase2 "${KPCN_LR2:-2e-5}" --schedule cosine --loss "${KPCN_LOSS:-relative}" --augment \
-    --checkpoint-every 200 --validate-every 250 -q
+    --checkpoint-every 200 --validate-every 250 -q ${KPCN_TRAIN_ARGS:-}
 echo "$run/model.safetensors (log: $run/log.csv)"
