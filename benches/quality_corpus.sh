@@ -8,6 +8,8 @@
 # 5th by name, as `kpcn train --holdout 5`); SPLIT=all scores every scene, for models
 # trained on none of them. CHANNELS=LAYER scores that layer of the output instead of
 # `denoised` (files as Blender writes them, corpus/raw/: CHANNELS=ViewLayer.Denoised).
+# ONLY=REGEX scores only the split's scenes whose name matches (an awk regular expression:
+# ONLY='^cyc-' for the Cycles scenes of a snapshot that mixes in simulator scenes).
 #
 #   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
@@ -22,8 +24,8 @@ cargo build --release --quiet
 kpcn=target/release/kpcn
 # manifest.csv: scene,family,seed,sample_seed,spp,file,reference,render_seconds
 held=$(tail -n +2 "$corpus/manifest.csv" | cut -d, -f1 | sort -u | awk 'NR % 5 == 0' | tr '\n' ' ')
-rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" -v held="$held" '
-    BEGIN { split(held, l, " "); for (i in l) h[l[i]] = 1 } which == "all" || ($1 in h)')
+rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" -v held="$held" -v only="${ONLY:-.}" '
+    BEGIN { split(held, l, " "); for (i in l) h[l[i]] = 1 } (which == "all" || ($1 in h)) && $1 ~ only')
 [ -n "$rows" ] || { echo "quality_corpus: no $split scenes in $corpus/manifest.csv" >&2; exit 1; }
 m=0
 for model in "$@"; do

@@ -15,13 +15,18 @@
 #   KPCN_LOSS=L                                     # kpcn train --loss (default relative)
 #   KPCN_TRAIN_ARGS="..."                           # more `kpcn train` options, e.g.
 #                                                   # --fireflies
+#   KPCN_SIM=DIR                                    # also train on a simulator dataset
+#                                                   # (`kpcn dataset -o DIR`): the families
+#                                                   # the corpus lacks (light through a
+#                                                   # slit) keep their brightness
 #
 # Steps, each skipped when done and resumed when interrupted:
 #   1. a frozen snapshot of the corpus's manifest (its SCENES, less those whose
 #      512-spp reference is itself noisy: corpus.jsonl's reference_relmse_floor above
 #      KPCN_MAX_FLOOR, night scenes lit by tiny lights, where a reference firefly would be
-#      taught as light), so that a corpus still rendering does not change the data under a
-#      resumed run; every 5th of its scenes by name is validation (`--holdout 5`);
+#      taught as light), and KPCN_SIM's scenes, so that a corpus still rendering does not
+#      change the data under a resumed run; every 5th of its scenes by name is validation
+#      (`--holdout 5`);
 #   2. one segment from MODEL's weights: --loss relative (KPCN_LOSS) --augment, batch 4, 96-px patches,
 #      lr 5e-5 / 2e-5 cosine (KPCN_LR, KPCN_LR2), validation every 250 steps (the learning
 #      curve in log.csv).
@@ -64,6 +69,10 @@ for line in open(sys.argv[1]):
         tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" -v rel="$rel" -v noisy="$noisy" '
             BEGIN { OFS = ","; split(noisy, l, " "); for (i in l) skip[l[i]] = 1 }
             $3 >= a && $3 < b && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+        if [ -n "${KPCN_SIM:-}" ]; then
+            sim=$(realpath --relative-to="$data" "$KPCN_SIM")
+            tail -n +2 "$KPCN_SIM/manifest.csv" | awk -F, -v rel="$sim" 'BEGIN { OFS = "," } { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+        fi
     } >"$data/manifest.partial"
     echo "train-cycles: left out for noisy references: ${noisy:-none}"
     mv "$data/manifest.partial" "$data/manifest.csv"
@@ -80,7 +89,8 @@ start=(--init "$(
         *) "$kpcn" model half "$model" -o "$work/init.safetensors" >/dev/null && echo "$work/init.safetensors" ;;
     esac
 )")
-[ -f "$run/checkpoint.safetensors" ] && start=(--resume)
+# --init stays (options such as --fresh require it); --resume reads the checkpoint instead.
+[ -f "$run/checkpoint.safetensors" ] && start+=(--resume)
 nice -n 19 "$kpcn" train --data "$data" -o "$run" "${start[@]}" --holdout 5 \
     --steps "${KPCN_STEPS:-3000}" --phase2-steps "${KPCN_PHASE2_STEPS:-500}" --batch 4 --patch 96 \
     --lr "${KPCN_LR:-5e-5}" --lr-phase2 "${KPCN_LR2:-2e-5}" --schedule cosine --loss "${KPCN_LOSS:-relative}" --augment \

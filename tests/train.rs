@@ -57,6 +57,7 @@ fn options(steps: u64) -> TrainOptions {
         augment: false,
         fireflies: None,
         permute_channels: false,
+        only: None,
     }
 }
 
@@ -123,6 +124,7 @@ fn training_lowers_the_loss_and_resumes_bit_exactly() {
         augment: true,
         fireflies: Some(Default::default()),
         permute_channels: true,
+        only: None,
         ..options(4)
     };
     let mut straight = Trainer::new(&tiny(), &data, opts()).unwrap();
@@ -383,6 +385,14 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
     let out = tune(&auto, &["--resume"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--exposure auto"), "{err}");
+    // One branch retrained afresh: the other keeps the model's weights exactly.
+    let fresh = dir.path().join("fresh");
+    let out = tune(&fresh, &["--init", model.to_str().unwrap(), "--fresh", "specular", "--only", "specular"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (before, after) = (Model::load(&model).unwrap(), Model::load(&fresh.join("model.safetensors")).unwrap());
+    assert!(branch_bits(&after, Branch::Diffuse) == branch_bits(&before, Branch::Diffuse));
+    assert!(branch_bits(&after, Branch::Specular) != branch_bits(&before, Branch::Specular));
+    assert!(after.description.contains("specular branch afresh"), "{}", after.description);
 }
 
 /// Every file under `dir`.
@@ -476,4 +486,32 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     }
     let m = t.model.snapshot("linear").unwrap();
     assert_eq!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.specular, linear.arch.specular);
+}
+
+/// The branch's weights, as bits.
+fn branch_bits(m: &Model, b: Branch) -> Vec<u32> {
+    let layers = if b == Branch::Diffuse { &m.diffuse.layers } else { &m.specular.layers };
+    layers.iter().flat_map(|(w, b)| [w, b]).flat_map(|t| v(t)).map(f32::to_bits).collect()
+}
+
+/// `--only specular` retrains one branch of a model: phase 1 leaves the other's weights
+/// exactly as they were (phase 2 then trains both).
+#[test]
+fn phase_one_can_train_one_branch_alone() {
+    let (_dir, data) = loaded(Default::default());
+    let start = tiny();
+    for only in [Branch::Specular, Branch::Diffuse] {
+        let mut t = Trainer::new(&start, &data, TrainOptions { only: Some(only), ..options(3) }).unwrap();
+        for _ in 0..3 {
+            let row = t.train_step().unwrap();
+            assert_eq!(row.loss_diffuse.is_nan(), only == Branch::Specular, "{row:?}");
+        }
+        let m = t.model.snapshot("one").unwrap();
+        let other = if only == Branch::Diffuse { Branch::Specular } else { Branch::Diffuse };
+        assert!(branch_bits(&m, other) == branch_bits(&start, other), "{other:?} changed while training {only:?}");
+        assert!(branch_bits(&m, only) != branch_bits(&start, only), "{only:?} did not train");
+        t.train_step().unwrap();
+        let both = t.model.snapshot("both").unwrap();
+        assert!(branch_bits(&both, other) != branch_bits(&start, other), "phase 2 trains {other:?} too");
+    }
 }

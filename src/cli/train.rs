@@ -5,6 +5,7 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use kpcn::eval::plot::write_png;
+use kpcn::features::Branch;
 use kpcn::kernel::ops::Ops;
 use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
@@ -107,6 +108,14 @@ pub struct TrainArgs {
     /// 32). Brighter outliers are surer to be noise: real highlights reach 10²–10³.
     #[arg(long, value_name = "GAIN", value_parser = firefly_gain, requires = "fireflies")]
     pub firefly_min_gain: Option<f64>,
+    /// Phase 1 trains only this branch; the other keeps its weights (phase 2 trains
+    /// both). With --fresh, to retrain one branch of a model. Give it again with --resume.
+    #[arg(long, value_enum, value_name = "diffuse|specular")]
+    pub only: Option<Branch>,
+    /// With --init: this branch starts afresh (Xavier initialisation from --seed) and the
+    /// other keeps the model's weights.
+    #[arg(long, value_enum, value_name = "diffuse|specular", requires = "init")]
+    pub fresh: Option<Branch>,
     /// Seed of initialisation and patch sampling: a run is reproducible from it.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -215,6 +224,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             Fireflies { most: args.firefly_most, min_decades: args.firefly_min_gain.map_or(d.min_decades, f64::log10) }
         }),
         permute_channels: args.permute_channels,
+        only: args.only,
     };
     let checkpoint = args.output.join(CHECKPOINT);
     let log_path = args.output.join("log.csv");
@@ -248,6 +258,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             Some(m) => m,
             None => Model::xavier(args.preset.architecture(args.kind)?, args.seed)?,
         };
+        if let Some(branch) = args.fresh {
+            let fresh = Model::xavier(model.arch, args.seed)?;
+            match branch {
+                Branch::Diffuse => model.diffuse = fresh.diffuse,
+                Branch::Specular => model.specular = fresh.specular,
+            }
+        }
         if let Some(c) = args.clamp {
             model.arch.clamp = c;
         }
@@ -360,6 +377,10 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             (args.permute_channels, ", channels permuted"),
             (args.fireflies, ", fireflies added"),
             (a.exposure == Exposure::Auto, ", auto-exposed"),
+            (args.fresh == Some(Branch::Diffuse), ", diffuse branch afresh"),
+            (args.fresh == Some(Branch::Specular), ", specular branch afresh"),
+            (args.only == Some(Branch::Diffuse), ", phase 1 on the diffuse branch alone"),
+            (args.only == Some(Branch::Specular), ", phase 1 on the specular branch alone"),
         ]
         .iter()
         .filter_map(|&(on, what)| on.then_some(what))

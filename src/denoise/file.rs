@@ -318,13 +318,27 @@ impl FileJob {
                 }
                 let context = bands.with_context(band);
                 let (c0, c1) = (context.start, context.end);
-                // The band with its context rows holds only the network's inputs (a wide
+                // A band with context rows holds only the network's inputs (a wide
                 // network's context is most of the band), and only until they are mapped;
-                // the copied channels are read for the inner rows after the network ran.
-                let fb = timed(&mut stages.read, || self.reader.read_band(Some(&needed), c0, c1))?;
+                // the copied channels are read for the inner rows after the network ran
+                // (held beside the context, they would cost more memory than a second
+                // decode costs time). A band without context rows (the whole frame, as a
+                // 1280×720 frame is at the default budget, whose band counts every channel
+                // of the file) decodes its rows once for both.
+                let once = context == *band && !copies.is_empty();
+                let names = if once { union(&needed, &copies) } else { needed.clone() };
+                let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
                 let started = std::time::Instant::now();
                 let inputs = self.mapping.extract(&fb)?;
-                drop(fb);
+                let held = if once {
+                    for n in needed.iter().filter(|n| !copies.contains(n)) {
+                        fb.remove(n);
+                    }
+                    Some(fb)
+                } else {
+                    drop(fb);
+                    None
+                };
                 for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
                     match totals.iter_mut().find(|t| t.0 == name) {
                         Some(t) => {
@@ -345,7 +359,10 @@ impl FileJob {
                 drop(f);
                 done += bands.tiles_in(denoiser, band);
                 let new = new_planes(&d, opts.aovs);
-                let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
+                let fb = match held {
+                    Some(fb) => fb,
+                    None => timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?,
+                };
                 let planes: Vec<&[f32]> = channels
                     .iter()
                     .map(|(_, _, src)| match src {
@@ -382,6 +399,11 @@ impl FileJob {
         }
         Ok(meter.finish())
     }
+}
+
+/// The channels of `a` and those of `b` not in `a`.
+fn union<'a>(a: &[&'a str], b: &[&'a str]) -> Vec<&'a str> {
+    a.iter().chain(b.iter().filter(|n| !a.contains(n))).copied().collect()
 }
 
 /// The layers written: suffix of the layer name and which result it holds. `NAME`, then

@@ -27,6 +27,7 @@ pub const MAX_MAGNITUDE: f32 = 1e15;
 
 /// Which network branch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
 pub enum Branch {
     /// Demodulated diffuse.
     Diffuse,

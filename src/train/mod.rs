@@ -158,6 +158,8 @@ pub struct TrainOptions {
     pub fireflies: Option<Fireflies>,
     /// Each patch's colour channels in one of the six orders, drawn at random.
     pub permute_channels: bool,
+    /// Phase 1 trains only this branch (the other keeps its weights); `None`: both.
+    pub only: Option<Branch>,
 }
 
 /// How many fireflies `--fireflies` adds to a patch, and how bright.
@@ -386,14 +388,18 @@ impl<'a> Trainer<'a> {
         let lr = self.opts.learning_rate(self.step);
         (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
         if self.step <= self.opts.phase1_steps {
-            let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
-            let ld = self.opts.loss.radiance(&d_hat, &bd.target)?;
-            self.adam_d.step(&self.model.vars(true, false), &ld)?;
-            let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
-            let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target)?;
-            self.adam_s.step(&self.model.vars(false, true), &ls)?;
-            row.loss_diffuse = scalar(&ld)? as f64;
-            row.loss_specular = scalar(&ls)? as f64;
+            if self.opts.only != Some(Branch::Specular) {
+                let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
+                let ld = self.opts.loss.radiance(&d_hat, &bd.target)?;
+                self.adam_d.step(&self.model.vars(true, false), &ld)?;
+                row.loss_diffuse = scalar(&ld)? as f64;
+            }
+            if self.opts.only != Some(Branch::Diffuse) {
+                let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
+                let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target)?;
+                self.adam_s.step(&self.model.vars(false, true), &ls)?;
+                row.loss_specular = scalar(&ls)? as f64;
+            }
         } else {
             row.phase = 2;
             let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
@@ -474,6 +480,7 @@ mod tests {
             augment: false,
             fireflies: None,
             permute_channels: false,
+            only: None,
         };
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(o.learning_rate(1), 1e-3));

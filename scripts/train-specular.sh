@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Retrains a shipped multi-scale model's specular branch from nothing, on simulator scenes
+# and our Cycles corpus, and keeps its diffuse branch. The ladder's specular branches never
+# trained: their kernels collapsed to one tap within the first steps, so specular light
+# passed through unfiltered (BENCHMARKS.md, "The specular branch that never trained").
+# The relMSE loss (reference in the denominator) trains it; the relative loss (prediction
+# in the denominator) drives it to the same one-tap collapse.
+#
+#   scripts/train-specular.sh CORPUS SCENES [MODEL]  # SCENES as scripts/train-cycles.sh
+#                                                    # takes them (default model: balanced)
+#   KPCN_WORK=DIR                                    # work folder (default ./train-specular)
+#   KPCN_STEPS=N                                     # length (default 3000)
+#
+# Steps, each skipped when done and resumed when interrupted:
+#   1. simulator data: the 8 families other than `slit` x seeds 20-22 (disjoint from the
+#      ladder's and scripts/train-v2.sh's) at 4, 16 and 64 spp with 512-spp references, and
+#      `slit` seeds 20-22 with 2048-spp references, 320x180, the default (Cycles-like)
+#      sampling: 27 scenes, about 20 min on 2 cores (WORK/sim);
+#   2. scripts/train-cycles.sh CORPUS SCENES MODEL with KPCN_SIM=WORK/sim: MODEL's diffuse
+#      branch as it is, the specular branch afresh (--fresh specular --only specular),
+#      --loss relmse --fireflies --augment, KPCN_STEPS steps, lr 3e-4 cosine, no phase 2,
+#      every 5th scene held out (WORK/MODEL/run, its learning curve in log.csv);
+#   3. the shipped form: f16 (`kpcn model half`) with the firefly clamp fine-pairs-twice
+#      (`kpcn model clamp`), WORK/MODEL.safetensors; copy it to models/MODEL.safetensors.
+# Score it against MODEL on the held-out scenes with
+#   benches/quality_corpus.sh WORK/MODEL/data MODEL WORK/MODEL.safetensors
+set -euo pipefail
+cd "$(dirname "$0")/.."
+corpus=${1:?usage: scripts/train-specular.sh CORPUS SCENES [MODEL]}
+scenes=${2:?usage: scripts/train-specular.sh CORPUS SCENES [MODEL]}
+model=${3:-balanced}
+work=${KPCN_WORK:-train-specular}
+mkdir -p "$work"
+
+cargo build --release --locked --quiet
+# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
+cp target/release/kpcn "$work/kpcn.$$"
+mv "$work/kpcn.$$" "$work/kpcn"
+kpcn=$work/kpcn
+
+sim=(--spp 4,16,64 --resolution 320x180 --count 3 --first-seed 20 -o "$work/sim" -q)
+nice -n 19 "$kpcn" dataset --families cornell,corridor,courtyard,dof,firefly,glass,interior,product --reference-spp 512 "${sim[@]}"
+nice -n 19 "$kpcn" dataset --families slit --reference-spp 2048 "${sim[@]}"
+
+KPCN_WORK=$work/$model KPCN_SIM=$work/sim KPCN_LOSS=relmse KPCN_LR=3e-4 KPCN_STEPS=${KPCN_STEPS:-3000} \
+    KPCN_PHASE2_STEPS=0 KPCN_TRAIN_ARGS="--fresh specular --only specular --fireflies" \
+    scripts/train-cycles.sh "$corpus" "$scenes" "$model"
+
+"$kpcn" model half "$work/$model/run/model.safetensors" -o "$work/$model.safetensors"
+"$kpcn" model clamp "$work/$model.safetensors" --clamp fine-pairs-twice -o "$work/$model.safetensors"
+echo "$work/$model.safetensors"
