@@ -3,13 +3,14 @@
 # and our Cycles corpus, and keeps its diffuse branch. The ladder's specular branches never
 # trained: their kernels collapsed to one tap within the first steps, so specular light
 # passed through unfiltered (BENCHMARKS.md, "The specular branch that never trained").
-# The relMSE loss (reference in the denominator) trains it; the relative loss (prediction
-# in the denominator) drives it to the same one-tap collapse.
+# `--loss relmse-local` trains it: the prediction's denominator (`relative`) and the
+# reference's (`relmse`, `relative-smaller`) collapse it again or darken bright regions.
 #
 #   scripts/train-specular.sh CORPUS SCENES [MODEL]  # SCENES as scripts/train-cycles.sh
 #                                                    # takes them (default model: balanced)
 #   KPCN_WORK=DIR                                    # work folder (default ./train-specular)
-#   KPCN_STEPS=N                                     # length (default 3000)
+#   KPCN_STEPS=N KPCN_LR=R KPCN_LOSS=L               # length, learning rate and loss
+#                                                    # (default 3000, 3e-4, relmse-local)
 #
 # Steps, each skipped when done and resumed when interrupted:
 #   1. simulator data: the 8 families other than `slit` x seeds 20-22 (disjoint from the
@@ -18,9 +19,11 @@
 #      sampling: 27 scenes, about 20 min on 2 cores (WORK/sim);
 #   2. scripts/train-cycles.sh CORPUS SCENES MODEL with KPCN_SIM=WORK/sim: MODEL's diffuse
 #      branch as it is, the specular branch afresh (--fresh specular --only specular),
-#      --loss relmse --fireflies --augment, KPCN_STEPS steps, lr 3e-4 cosine, no phase 2,
-#      every 5th scene held out (WORK/MODEL/run, its learning curve in log.csv);
-#   3. the shipped form: f16 (`kpcn model half`) with the firefly clamp fine-pairs-twice
+#      --loss relmse-local (KPCN_LOSS) --augment, KPCN_STEPS steps, lr 3e-4 (KPCN_LR) cosine, no phase 2,
+#      every 5th scene held out (WORK/MODEL/run, its learning curve in log.csv); `spatial`
+#      on spatial variance estimates with --permute-channels, as it was trained;
+#   3. the shipped form: f16 for the ladder's rungs (`kpcn model half`), f32 for `compact`
+#      and `spatial`, with the firefly clamp fine-pairs-twice
 #      (`kpcn model clamp`), WORK/MODEL.safetensors; copy it to models/MODEL.safetensors.
 # Score it against MODEL on the held-out scenes with
 #   benches/quality_corpus.sh WORK/MODEL/data MODEL WORK/MODEL.safetensors
@@ -42,10 +45,18 @@ sim=(--spp 4,16,64 --resolution 320x180 --count 3 --first-seed 20 -o "$work/sim"
 nice -n 19 "$kpcn" dataset --families cornell,corridor,courtyard,dof,firefly,glass,interior,product --reference-spp 512 "${sim[@]}"
 nice -n 19 "$kpcn" dataset --families slit --reference-spp 2048 "${sim[@]}"
 
-KPCN_WORK=$work/$model KPCN_SIM=$work/sim KPCN_LOSS=relmse KPCN_LR=3e-4 KPCN_STEPS=${KPCN_STEPS:-3000} \
-    KPCN_PHASE2_STEPS=0 KPCN_TRAIN_ARGS="--fresh specular --only specular --fireflies" \
+# `spatial` reads the spatial variance estimates files without variances get, and was
+# trained with its colour channels permuted: so is its new branch.
+extra=""
+[ "$model" = spatial ] && extra="--variances spatial --permute-channels"
+KPCN_WORK=$work/$model KPCN_SIM=$work/sim KPCN_LOSS=${KPCN_LOSS:-relmse-local} KPCN_LR=${KPCN_LR:-3e-4} KPCN_STEPS=${KPCN_STEPS:-3000} \
+    KPCN_PHASE2_STEPS=0 KPCN_TRAIN_ARGS="--fresh specular --only specular $extra" \
     scripts/train-cycles.sh "$corpus" "$scenes" "$model"
 
-"$kpcn" model half "$work/$model/run/model.safetensors" -o "$work/$model.safetensors"
+# The ladder's rungs ship in f16; `compact` and `spatial` in f32, as they were.
+case $model in
+    fast | balanced | high) "$kpcn" model half "$work/$model/run/model.safetensors" -o "$work/$model.safetensors" ;;
+    *) cp "$work/$model/run/model.safetensors" "$work/$model.safetensors" ;;
+esac
 "$kpcn" model clamp "$work/$model.safetensors" --clamp fine-pairs-twice -o "$work/$model.safetensors"
 echo "$work/$model.safetensors"

@@ -491,7 +491,7 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
 /// The branch's weights, as bits.
 fn branch_bits(m: &Model, b: Branch) -> Vec<u32> {
     let layers = if b == Branch::Diffuse { &m.diffuse.layers } else { &m.specular.layers };
-    layers.iter().flat_map(|(w, b)| [w, b]).flat_map(|t| v(t)).map(f32::to_bits).collect()
+    layers.iter().flat_map(|(w, b)| [w, b]).flat_map(v).map(f32::to_bits).collect()
 }
 
 /// `--only specular` retrains one branch of a model: phase 1 leaves the other's weights

@@ -38,6 +38,32 @@ pub fn relative_smaller(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
     relative_to(x, y, &x.detach().minimum(y)?)
 }
 
+/// Relative squared error `(x − y)² / (m² + 0.01)`, `m` the 5×5 box mean of the reference
+/// around each pixel (over the pixels inside the patch): a bright blotch or a kept firefly
+/// on a dark background costs about what the evaluator charges ([`relmse`]), so the network
+/// is not paid to leave sparse noise in place as with the prediction's denominator
+/// ([`relative_l2`]), while a pixel's own noise is a 25th of its denominator, so noisy
+/// references pull it only slightly dark (the test below). Plus the same error of the 8×8
+/// block means against the reference's: softmax kernels are never exactly one tap, and with
+/// a reference's denominator light leaking into a dark neighbour costs far more than light
+/// lost from a bright pixel, so without it the network learns to erode bright regions (a
+/// simulator `cornell` frame lost 7 % of its light). Takes `(N, C, H, W)` tensors.
+pub fn relmse_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let (_, c, h, w) = y.dims4()?;
+    let k = Tensor::ones((c, 1, 5, 5), y.dtype(), y.device())?;
+    let sum = y.conv2d(&k, 2, 1, 1, c)?;
+    let count = y.ones_like()?.conv2d(&k, 2, 1, 1, c)?;
+    let pixels = relative_to(x, y, &(sum / count)?)?;
+    if h < BLOCK || w < BLOCK {
+        return Ok(pixels);
+    }
+    let (bx, by) = (x.avg_pool2d(BLOCK)?, y.avg_pool2d(BLOCK)?);
+    Ok((pixels + relative_to(&bx, &by, &by)?)?)
+}
+
+/// The block whose mean [`relmse_local`] keeps.
+const BLOCK: usize = 8;
+
 /// L1 between tonemapped radiances, ln(1 + max(v, 0)): keeps the shadows' and the
 /// highlights' shapes in view where the relative term is flat.
 pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
@@ -63,6 +89,10 @@ pub enum Loss {
     /// relMSE with the smaller of the prediction (gradient stopped) and the reference as
     /// its denominator plus L1 on tonemapped radiance.
     RelativeSmaller,
+    /// relMSE with the reference's 5×5 local mean as its denominator plus L1 on tonemapped
+    /// radiance: charges kept noise as the evaluator does, nearly unbiased on noisy
+    /// references. Trains a specular branch afresh where `relative` collapses it to one tap.
+    RelmseLocal,
 }
 
 /// A loss term of a prediction against its target.
@@ -76,6 +106,7 @@ impl Loss {
             Loss::Relative => Some(relative_l2),
             Loss::Relmse => Some(relmse),
             Loss::RelativeSmaller => Some(relative_smaller),
+            Loss::RelmseLocal => Some(relmse_local),
         }
     }
 
@@ -115,8 +146,11 @@ mod tests {
 
     /// d loss / d x for a constant prediction `x` against samples `ys`.
     fn slope(loss: fn(&Tensor, &Tensor) -> Result<Tensor, ModelError>, x: f32, ys: &[f32]) -> f32 {
-        let v = Var::from_tensor(&Tensor::full(x, ys.len(), &Device::Cpu).unwrap()).unwrap();
-        let y = Tensor::new(ys, &Device::Cpu).unwrap();
+        // An image of 40 rows where the count allows, for the losses that look around a pixel.
+        let n = ys.len();
+        let shape = if n.is_multiple_of(40) { (1, 1, 40, n / 40) } else { (1, 1, 1, n) };
+        let v = Var::from_tensor(&Tensor::full(x, shape, &Device::Cpu).unwrap()).unwrap();
+        let y = Tensor::new(ys, &Device::Cpu).unwrap().reshape(shape).unwrap();
         let g = loss(v.as_tensor(), &y).unwrap().backward().unwrap();
         g.get(v.as_tensor()).unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap()
     }
@@ -149,10 +183,11 @@ mod tests {
         // With its denominator from the prediction the relative term converges to the
         // targets' mean, the clean value, however noisy they are; with the noisy target as
         // its denominator it is pulled below (measured: −7.5 % on 512-sample targets, to
-        // 0.008 on 16-sample ones). The tonemapped L1 term pulls toward the targets'
-        // median: the whole loss lands +0.2 % off on 512-sample targets, +2.8 % on 16.
+        // 0.008 on 16-sample ones); with the targets' 5×5 mean (relmse_local), +0.2 % and
+        // −8 %. The tonemapped L1 term pulls toward the targets' median: the whole loss
+        // lands +0.2 % off on 512-sample targets, +2.8 % on 16.
         let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y);
-        for (n, full_bias) in [(512, 0.01), (16, 0.05)] {
+        for (n, full_bias, local_bias) in [(512, 0.01, 0.01), (16, 0.05, 0.15)] {
             let ys = noisy_targets(n, 0.05, 4000);
             let mean = ys.iter().map(|&v| v as f64).sum::<f64>() / ys.len() as f64;
             let relative = converges_to(relative_l2, &ys) as f64;
@@ -164,6 +199,12 @@ mod tests {
             );
             assert!((whole / mean - 1.0).abs() < full_bias, "{n} samples: the whole loss → {whole}, mean {mean}");
             assert!(biased < 0.95 * mean, "{n} samples: the target as denominator → {biased}, mean {mean}");
+            let local = converges_to(relmse_local, &ys) as f64;
+            println!("{n} samples per target: the targets' 5×5 mean as denominator → {local:.4}");
+            assert!(
+                (local / mean - 1.0).abs() < local_bias,
+                "{n} samples: the local mean as denominator → {local}, mean {mean}"
+            );
         }
     }
 
@@ -181,6 +222,23 @@ mod tests {
         // The prediction as denominator charges 1/30 of it: such blotches are cheap to learn.
         let cheap = at(relative_l2, 0.7, 0.08);
         assert!(cheap * 25.0 < evaluator, "{cheap} against {evaluator}");
+    }
+
+    #[test]
+    fn relmse_local_charges_light_lost_more_than_the_same_error_that_keeps_it() {
+        // A bright 4×4 square on black: each bright pixel 0.3 too dark, or alternately 0.3
+        // too dark and too bright. The same per-pixel errors; only the first loses light.
+        let image = |f: &dyn Fn(usize, usize) -> f32| {
+            let v: Vec<f32> = (0..64).map(|i| f(i / 8, i % 8)).collect();
+            Tensor::new(v, &Device::Cpu).unwrap().reshape((1, 1, 8, 8)).unwrap()
+        };
+        let bright = |r: usize, c: usize| (2..6).contains(&r) && (2..6).contains(&c);
+        let y = image(&|r, c| if bright(r, c) { 5.0 } else { 0.0 });
+        let eroded = image(&|r, c| if bright(r, c) { 4.7 } else { 0.0 });
+        let kept = image(&|r, c| if bright(r, c) { 5.0 + if (r + c) % 2 == 0 { 0.3 } else { -0.3 } } else { 0.0 });
+        let (lost, same) =
+            (scalar(&relmse_local(&eroded, &y).unwrap()).unwrap(), scalar(&relmse_local(&kept, &y).unwrap()).unwrap());
+        assert!(lost > 1.2 * same, "light lost {lost}, light kept {same}");
     }
 
     #[test]
