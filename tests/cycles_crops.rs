@@ -31,15 +31,11 @@ const OUTLIER_FLOOR: f32 = 0.5;
 /// another of the three.
 const KNOWN_OUTLIERS: &[(&str, u32, usize)] = &[];
 
-/// Crops whose error does not fall with samples (2026-12-03, `balanced` with its specular
-/// branch retrained): (crop, relMSE at 4 / 16 / 64 spp, measured by this test with
-/// `--nocapture`): caustics of glass under two area lights. The retrained specular kernels
-/// spread a caustic firefly's energy into its dark neighbours (at 16 spp one pixel of
-/// reference 0.115 comes out 2.64 beside a noisy 6.8: 64 % of that crop's relMSE), where
-/// the untrained branch returned the firefly in place (0.0318 / 0.0365 / 0.0852 and
-/// 0.2627 / 2.0287 / 0.6942 then).
+/// Crops whose error does not fall with samples (2026-12-02, `balanced`): (crop, relMSE at
+/// 4 / 16 / 64 spp, measured by this test with `--nocapture`): caustics of glass under
+/// two area lights, not yet diagnosed.
 const KNOWN_GROWTH: &[(&str, [f64; 3])] =
-    &[("cyc-00052-x40y8", [0.4143, 0.9476, 1.3629]), ("cyc-00052-x200y24", [0.0345, 0.1849, 0.1204])];
+    &[("cyc-00052-x40y8", [0.2627, 2.0287, 0.6942]), ("cyc-00052-x200y24", [0.0318, 0.0365, 0.0852])];
 
 fn crop(name: &str, what: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/data/cycles-crops/{name}-{what}.exr"))
@@ -129,7 +125,8 @@ fn the_outlier_measure_finds_a_firefly_and_passes_the_reference() {
 /// to one tap while training (`--loss l1` and `relative` both reward keeping sparse
 /// specular noise where it is; BENCHMARKS.md "The specular branch that never trained").
 /// Each must not keep more; a retrained one leaves this list.
-const KNOWN_IDENTITY_SPECULAR: &[(&str, f64)] = &[("fast", 0.71), ("high", 0.71), ("spatial", 0.71), ("compact", 0.71)];
+const KNOWN_IDENTITY_SPECULAR: &[(&str, f64)] =
+    &[("fast", 0.71), ("high", 0.71), ("spatial", 0.71), ("compact", 0.71), ("balanced", 0.71)];
 
 /// The share of the specular pixels (noisy specular above 0.01) that a model returns
 /// exactly as they came (within 0.1 %), over the crops at 16 spp.
