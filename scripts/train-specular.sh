@@ -11,6 +11,9 @@
 #   KPCN_WORK=DIR                                    # work folder (default ./train-specular)
 #   KPCN_STEPS=N KPCN_LR=R KPCN_LOSS=L               # length, learning rate and loss
 #                                                    # (default 3000, 3e-4, relmse-local)
+#   KPCN_FIREFLIES=1                                 # also --fireflies: synthetic single-
+#                                                    # pixel outliers in the noisy input only
+#                                                    # (BENCHMARKS.md: lr 1e-4 with them)
 #
 # Steps, each skipped when done and resumed when interrupted:
 #   1. simulator data: the 8 families other than `slit` x seeds 20-22 (disjoint from the
@@ -48,7 +51,8 @@ nice -n 19 "$kpcn" dataset --families slit --reference-spp 2048 "${sim[@]}"
 # `spatial` reads the spatial variance estimates files without variances get, and was
 # trained with its colour channels permuted: so is its new branch.
 extra=""
-[ "$model" = spatial ] && extra="--variances spatial --permute-channels"
+[ "${KPCN_FIREFLIES:-0}" = 1 ] && extra="--fireflies"
+[ "$model" = spatial ] && extra="$extra --variances spatial --permute-channels"
 KPCN_WORK=$work/$model KPCN_SIM=$work/sim KPCN_LOSS=${KPCN_LOSS:-relmse-local} KPCN_LR=${KPCN_LR:-3e-4} KPCN_STEPS=${KPCN_STEPS:-3000} \
     KPCN_PHASE2_STEPS=0 KPCN_TRAIN_ARGS="--fresh specular --only specular $extra" \
     scripts/train-cycles.sh "$corpus" "$scenes" "$model"
