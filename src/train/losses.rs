@@ -54,6 +54,22 @@ pub fn relmse_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
     let sum = y.conv2d(&k, 2, 1, 1, c)?;
     let count = y.ones_like()?.conv2d(&k, 2, 1, 1, c)?;
     let pixels = relative_to(x, y, &(sum / count)?)?;
+    plus_block_means(pixels, x, y, (h, w))
+}
+
+/// [`relmse`] plus the relMSE of 8×8 block means, as [`relmse_local`] adds it: each
+/// pixel's error charged by its own reference, as the evaluator charges it (light leaking
+/// into a dark pixel of a fine texture costs what it costs there, where the local mean's
+/// denominator made it cheap), and light lost from a block charged too, against the
+/// erosion `relmse` alone learns. Takes `(N, C, H, W)` tensors.
+pub fn relmse_blocks(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let (_, _, h, w) = y.dims4()?;
+    plus_block_means(relmse(x, y)?, x, y, (h, w))
+}
+
+/// `pixels` plus the relMSE of the `BLOCK`×`BLOCK` means of `x` against `y`'s (when the
+/// patch holds one).
+fn plus_block_means(pixels: Tensor, x: &Tensor, y: &Tensor, (h, w): (usize, usize)) -> Result<Tensor, ModelError> {
     if h < BLOCK || w < BLOCK {
         return Ok(pixels);
     }
@@ -93,6 +109,9 @@ pub enum Loss {
     /// radiance: charges kept noise as the evaluator does, nearly unbiased on noisy
     /// references. Trains a specular branch afresh where `relative` collapses it to one tap.
     RelmseLocal,
+    /// relMSE with the reference as its denominator plus the relMSE of 8×8 block means,
+    /// plus L1 on tonemapped radiance: `relmse` without its erosion of bright regions.
+    RelmseBlocks,
 }
 
 /// A loss term of a prediction against its target.
@@ -107,6 +126,7 @@ impl Loss {
             Loss::Relmse => Some(relmse),
             Loss::RelativeSmaller => Some(relative_smaller),
             Loss::RelmseLocal => Some(relmse_local),
+            Loss::RelmseBlocks => Some(relmse_blocks),
         }
     }
 
@@ -225,7 +245,7 @@ mod tests {
     }
 
     #[test]
-    fn relmse_local_charges_light_lost_more_than_the_same_error_that_keeps_it() {
+    fn the_block_term_charges_light_lost_more_than_the_same_error_that_keeps_it() {
         // A bright 4×4 square on black: each bright pixel 0.3 too dark, or alternately 0.3
         // too dark and too bright. The same per-pixel errors; only the first loses light.
         let image = |f: &dyn Fn(usize, usize) -> f32| {
@@ -236,9 +256,32 @@ mod tests {
         let y = image(&|r, c| if bright(r, c) { 5.0 } else { 0.0 });
         let eroded = image(&|r, c| if bright(r, c) { 4.7 } else { 0.0 });
         let kept = image(&|r, c| if bright(r, c) { 5.0 + if (r + c) % 2 == 0 { 0.3 } else { -0.3 } } else { 0.0 });
+        for (name, loss) in [("relmse-local", relmse_local as Term), ("relmse-blocks", relmse_blocks)] {
+            let (lost, same) =
+                (scalar(&loss(&eroded, &y).unwrap()).unwrap(), scalar(&loss(&kept, &y).unwrap()).unwrap());
+            assert!(lost > 1.2 * same, "{name}: light lost {lost}, light kept {same}");
+        }
+        // `relmse` alone charges both the same.
         let (lost, same) =
-            (scalar(&relmse_local(&eroded, &y).unwrap()).unwrap(), scalar(&relmse_local(&kept, &y).unwrap()).unwrap());
-        assert!(lost > 1.2 * same, "light lost {lost}, light kept {same}");
+            (scalar(&relmse(&eroded, &y).unwrap()).unwrap(), scalar(&relmse(&kept, &y).unwrap()).unwrap());
+        assert!((lost / same - 1.0).abs() < 1e-4, "relmse: light lost {lost}, light kept {same}");
+    }
+
+    #[test]
+    fn relmse_blocks_charges_light_leaked_into_a_dark_texel_as_the_evaluator_does() {
+        // A fine texture (bright and dark pixels alternating) blurred to its mean: the local
+        // mean's denominator charges the dark pixels' error by the bright ones' light.
+        let image = |f: &dyn Fn(usize) -> f32| {
+            let v: Vec<f32> = (0..64).map(f).collect();
+            Tensor::new(v, &Device::Cpu).unwrap().reshape((1, 1, 8, 8)).unwrap()
+        };
+        let y = image(&|i| if (i / 8 + i % 8) % 2 == 0 { 2.0 } else { 0.05 });
+        let blurred = image(&|_| 1.025);
+        let ratio = |loss: Term| {
+            scalar(&loss(&blurred, &y).unwrap()).unwrap() / scalar(&relmse(&blurred, &y).unwrap()).unwrap()
+        };
+        assert!(ratio(relmse_local) < 0.3, "relmse-local charges {}× relmse", ratio(relmse_local));
+        assert!(ratio(relmse_blocks) >= 1.0, "relmse-blocks charges {}× relmse", ratio(relmse_blocks));
     }
 
     #[test]
