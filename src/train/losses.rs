@@ -49,12 +49,29 @@ pub fn relative_smaller(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
 /// lost from a bright pixel, so without it the network learns to erode bright regions (a
 /// simulator `cornell` frame lost 7 % of its light). Takes `(N, C, H, W)` tensors.
 pub fn relmse_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let (_, c, h, w) = y.dims4()?;
-    let k = Tensor::ones((c, 1, 5, 5), y.dtype(), y.device())?;
-    let sum = y.conv2d(&k, 2, 1, 1, c)?;
-    let count = y.ones_like()?.conv2d(&k, 2, 1, 1, c)?;
-    let pixels = relative_to(x, y, &(sum / count)?)?;
+    let (_, _, h, w) = y.dims4()?;
+    let pixels = relative_to(x, y, &local_mean(y)?)?;
     plus_block_means(pixels, x, y, (h, w))
+}
+
+/// Relative squared error `(x − y)² / (m² + 0.01)`, `m` the 5×5 box mean of the
+/// prediction with its gradient stopped, plus the relMSE of 8×8 block means: mean-seeking
+/// like [`relative_l2`] (no reference in the denominator, whose minimiser under
+/// uncertainty is biased dark), but a spike kept in place is charged by its neighbourhood's
+/// mean, not by itself. Takes `(N, C, H, W)` tensors.
+pub fn relative_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let (_, _, h, w) = y.dims4()?;
+    let pixels = relative_to(x, y, &local_mean(&x.detach())?)?;
+    plus_block_means(pixels, x, y, (h, w))
+}
+
+/// The 5×5 box mean of `v` around each pixel, over the pixels inside the patch.
+fn local_mean(v: &Tensor) -> Result<Tensor, ModelError> {
+    let (_, c, _, _) = v.dims4()?;
+    let k = Tensor::ones((c, 1, 5, 5), v.dtype(), v.device())?;
+    let sum = v.conv2d(&k, 2, 1, 1, c)?;
+    let count = v.ones_like()?.conv2d(&k, 2, 1, 1, c)?;
+    Ok((sum / count)?)
 }
 
 /// [`relmse`] plus the relMSE of 8×8 block means, as [`relmse_local`] adds it: each
@@ -112,6 +129,9 @@ pub enum Loss {
     /// relMSE with the reference as its denominator plus the relMSE of 8×8 block means,
     /// plus L1 on tonemapped radiance: `relmse` without its erosion of bright regions.
     RelmseBlocks,
+    /// Relative L2 with the prediction's 5×5 local mean (gradient stopped) as its
+    /// denominator plus the relMSE of 8×8 block means, plus L1 on tonemapped radiance.
+    RelativeLocal,
 }
 
 /// A loss term of a prediction against its target.
@@ -127,6 +147,7 @@ impl Loss {
             Loss::RelativeSmaller => Some(relative_smaller),
             Loss::RelmseLocal => Some(relmse_local),
             Loss::RelmseBlocks => Some(relmse_blocks),
+            Loss::RelativeLocal => Some(relative_local),
         }
     }
 
@@ -225,7 +246,27 @@ mod tests {
                 (local / mean - 1.0).abs() < local_bias,
                 "{n} samples: the local mean as denominator → {local}, mean {mean}"
             );
+            let predicted = converges_to(relative_local, &ys) as f64;
+            println!("{n} samples per target: the prediction's 5×5 mean as denominator → {predicted:.4}");
+            assert!(
+                (predicted / mean - 1.0).abs() < local_bias,
+                "{n} samples: the prediction's local mean as denominator → {predicted}, mean {mean}"
+            );
         }
+    }
+
+    #[test]
+    fn relative_local_charges_a_kept_spike_by_its_neighbourhood() {
+        // A flat dark reference; the prediction keeps one firefly. The prediction's own
+        // value as denominator (relative L2) makes the spike nearly free.
+        let image = |spike: f32| {
+            let v: Vec<f32> = (0..64).map(|i| if i == 27 { spike } else { 0.1 }).collect();
+            Tensor::new(v, &Device::Cpu).unwrap().reshape((1, 1, 8, 8)).unwrap()
+        };
+        let (x, y) = (image(10.0), image(0.1));
+        let (own, local) =
+            (scalar(&relative_l2(&x, &y).unwrap()).unwrap(), scalar(&relative_local(&x, &y).unwrap()).unwrap());
+        assert!(local > 50.0 * own, "the prediction's local mean charges {local}, its own value {own}");
     }
 
     /// `loss` of a one-pixel prediction `x` against `y`.
