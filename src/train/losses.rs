@@ -49,9 +49,7 @@ pub fn relative_smaller(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
 /// lost from a bright pixel, so without it the network learns to erode bright regions (a
 /// simulator `cornell` frame lost 7 % of its light). Takes `(N, C, H, W)` tensors.
 pub fn relmse_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let (_, _, h, w) = y.dims4()?;
-    let pixels = relative_to(x, y, &local_mean(y)?)?;
-    plus_block_means(pixels, x, y, (h, w))
+    plus_block_means(relative_to(x, y, &local_mean(y)?)?, x, y)
 }
 
 /// Relative squared error `(x − y)² / (m² + 0.01)`, `m` the 5×5 box mean of the
@@ -60,9 +58,7 @@ pub fn relmse_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
 /// uncertainty is biased dark), but a spike kept in place is charged by its neighbourhood's
 /// mean, not by itself. Takes `(N, C, H, W)` tensors.
 pub fn relative_local(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let (_, _, h, w) = y.dims4()?;
-    let pixels = relative_to(x, y, &local_mean(&x.detach())?)?;
-    plus_block_means(pixels, x, y, (h, w))
+    plus_block_means(relative_to(x, y, &local_mean(&x.detach())?)?, x, y)
 }
 
 /// The 5×5 box mean of `v` around each pixel, over the pixels inside the patch.
@@ -77,16 +73,17 @@ fn local_mean(v: &Tensor) -> Result<Tensor, ModelError> {
 /// [`relmse`] plus the relMSE of 8×8 block means, as [`relmse_local`] adds it: each
 /// pixel's error charged by its own reference, as the evaluator charges it (light leaking
 /// into a dark pixel of a fine texture costs what it costs there, where the local mean's
-/// denominator made it cheap), and light lost from a block charged too, against the
-/// erosion `relmse` alone learns. Takes `(N, C, H, W)` tensors.
+/// denominator made it cheap), and light lost from a block charged too. On the specular
+/// branch it keeps fine texture but darkens bright regions as `relmse` does: the block
+/// term does not stop it (BENCHMARKS.md). Takes `(N, C, H, W)` tensors.
 pub fn relmse_blocks(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-    let (_, _, h, w) = y.dims4()?;
-    plus_block_means(relmse(x, y)?, x, y, (h, w))
+    plus_block_means(relmse(x, y)?, x, y)
 }
 
 /// `pixels` plus the relMSE of the `BLOCK`×`BLOCK` means of `x` against `y`'s (when the
 /// patch holds one).
-fn plus_block_means(pixels: Tensor, x: &Tensor, y: &Tensor, (h, w): (usize, usize)) -> Result<Tensor, ModelError> {
+fn plus_block_means(pixels: Tensor, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let (_, _, h, w) = y.dims4()?;
     if h < BLOCK || w < BLOCK {
         return Ok(pixels);
     }
@@ -127,7 +124,7 @@ pub enum Loss {
     /// references. Trains a specular branch afresh where `relative` collapses it to one tap.
     RelmseLocal,
     /// relMSE with the reference as its denominator plus the relMSE of 8×8 block means,
-    /// plus L1 on tonemapped radiance: `relmse` without its erosion of bright regions.
+    /// plus L1 on tonemapped radiance.
     RelmseBlocks,
     /// Relative L2 with the prediction's 5×5 local mean (gradient stopped) as its
     /// denominator plus the relMSE of 8×8 block means, plus L1 on tonemapped radiance.
