@@ -592,7 +592,8 @@ fn tiles_are_never_mostly_context_whatever_the_budget() {
             assert!(t.h >= reach || t.y + t.h == rows, "{t:?} against a reach of {reach}");
         }
     }
-    // Compact's reach is small: the same budget gives it small tiles.
-    let c = Denoiser::new(Model::resolve("compact").unwrap(), Options { max_memory_mb: 16, ..Options::default() });
+    // Compact's reach is small: a small budget gives it small tiles. (A tile streams
+    // through the network holding some rows of it, so 16 MB is no longer small.)
+    let c = Denoiser::new(Model::resolve("compact").unwrap(), Options { max_memory_mb: 4, ..Options::default() });
     assert!(c.unwrap().tiles(w, 0..h, h).iter().all(|t| t.w < reach));
 }

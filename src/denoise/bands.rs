@@ -4,6 +4,7 @@
 //! denoising the whole frame at once, bit for bit. Files ([`super::FileJob`]) and host
 //! buffers (the C ABI, the Python module) are streamed alike.
 
+use super::stream::FrameStream;
 use super::{DenoiseError, Denoised, Denoiser, Progress, reserve_working_memory};
 use crate::features;
 use crate::io::layout::KpcnInputs;
@@ -17,11 +18,17 @@ use std::ops::Range;
 /// more peak RSS: BENCHMARKS.md.)
 const BAND_FLOATS_PER_PIXEL: usize = 120;
 
+/// Rows per band of a streamed frame that takes several.
+const STREAMED_BAND_ROWS: usize = 64;
+
 /// The bands of a `width`×`height` frame for one denoiser.
 #[derive(Debug, Clone)]
 pub struct Bands {
     bands: Vec<Range<usize>>,
     halo: usize,
+    /// Rows the first and the last band are read with at least, for the rows a streamed
+    /// frame mirrors beyond its edges.
+    mirrored: usize,
     width: usize,
     height: usize,
 }
@@ -38,10 +45,16 @@ impl Bands {
         // band is twice the context, over budget rather than several times slower.
         let halo = denoiser.halo();
         let by_budget = by_budget.max(2 * halo).max(16);
+        // A streamed frame of several bands decodes its rows for the statistics and again
+        // for the copied channels whatever the bands' size, so its bands are short: they
+        // hold the features and the rows being written, beside the streams.
+        let by_budget =
+            if denoiser.streams() && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
         let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
         let rows = rows.min(height.max(1));
         let bands = (0..height).step_by(rows).map(|a| a..(a + rows).min(height)).collect();
-        Bands { bands, halo, width, height }
+        let mirrored = if denoiser.streams() { FrameStream::mirrored_rows(denoiser, height) + 1 } else { 0 };
+        Bands { bands, halo, mirrored, width, height }
     }
 
     /// Rows per band (the last may be shorter).
@@ -64,9 +77,18 @@ impl Bands {
         self.bands.is_empty()
     }
 
-    /// `band` with its context rows (clipped to the frame).
+    /// `band` with its context rows (clipped to the frame; for a streamed frame's first
+    /// and last bands, also the rows mirrored beyond its edges).
     pub fn with_context(&self, band: &Range<usize>) -> Range<usize> {
-        band.start.saturating_sub(self.halo)..(band.end + self.halo).min(self.height)
+        let mut start = band.start.saturating_sub(self.halo);
+        let mut end = (band.end + self.halo).min(self.height);
+        if band.start == 0 {
+            end = end.max(self.mirrored.min(self.height));
+        }
+        if band.end == self.height {
+            start = start.min(self.height.saturating_sub(self.mirrored));
+        }
+        start..end
     }
 
     /// `band`'s rows within [`Bands::with_context`].
@@ -75,8 +97,11 @@ impl Bands {
         band.start - c0..band.end - c0
     }
 
-    /// Tiles of `band`.
+    /// Tiles of `band` (a streamed frame counts a band as one).
     pub fn tiles_in(&self, denoiser: &Denoiser, band: &Range<usize>) -> usize {
+        if denoiser.streams() {
+            return 1;
+        }
         denoiser.band_tiles(self.width, self.inner(band), self.with_context(band).len()).len()
     }
 
@@ -125,6 +150,24 @@ impl Denoiser {
             Some(meter.finish())
         };
         let (total, mut done) = (bands.total_tiles(self), 0);
+        if let Some(mut network) = FrameStream::new(self, bands.width, bands.height) {
+            for band in bands.iter() {
+                let context = bands.with_context(band);
+                let inputs = read(context.clone())?;
+                let remainder = inputs.remainder(bands.inner(band));
+                let f = self.features(Cow::Owned(inputs), whole);
+                network.push(&f, context.start, band.clone(), remainder);
+                drop(f);
+                while let Some((rows, d)) = network.ready() {
+                    done += 1;
+                    if !progress(Progress { done, total }) {
+                        return Err(DenoiseError::Cancelled.into());
+                    }
+                    write(rows, d)?;
+                }
+            }
+            return Ok(());
+        }
         for band in bands.iter() {
             let inner = bands.inner(band);
             let inputs = read(bands.with_context(band))?;

@@ -6,10 +6,12 @@
 //! its inner rows are denoised and written straight after a copy of the input channels.
 //! The result equals denoising the whole frame at once (tested bit for bit).
 
+use super::stream::FrameStream;
 use super::{Bands, Component, DenoiseError, Denoised, Denoiser, Progress};
 use crate::features::{self, FrameStats};
 use crate::io::layout::{Layout, Mapping, Quantity};
 use crate::io::{Attribute, FrameBuffers, FrameReader, FrameWriter, IoError, SampleFormat, WriteOptions};
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 
 /// What to write.
@@ -234,9 +236,11 @@ impl FileJob {
         let band = bands.rows();
         // Every handle is opened before the output, whose creation sizes OpenEXR's pool.
         self.reader.set_decoders(denoiser.threads())?;
-        // The largest band's working memory (context rows included), checked before the
-        // output exists.
-        bands.reserve(denoiser, 0, 0).map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
+        // The largest band's working memory (context rows included) and, beside it, a
+        // band's copied channels and result held by the encoder (with several bands, one
+        // more on its way there), checked before the output exists.
+        let in_flight = (self.reader.channel_names().count() + 9) * if bands.len() > 1 { 2 } else { 1 };
+        bands.reserve(denoiser, in_flight, 0).map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
         let needed = self.mapping.channels();
         let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
 
@@ -289,90 +293,141 @@ impl FileJob {
             .iter()
             .map(|(name, ch)| (name.as_str(), ch.iter().map(|(n, f, _)| (n.as_str(), *f)).collect()))
             .collect();
-        let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
-
         let total = bands.total_tiles(denoiser);
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
         let mut report = FileReport::default();
-        // Parts are written one after another (as EXR requires), each streamed in bands;
-        // only the beauty's part runs the network.
-        for (p, (_, channels)) in parts.iter().enumerate() {
-            if p > 0 {
-                writer.next_part()?;
-            }
-            let copies: Vec<&str> = channels
-                .iter()
-                .filter_map(|(_, _, src)| match src {
-                    Src::Input(n) => Some(n.as_str()),
-                    Src::New(_) => None,
-                })
-                .collect();
-            for band in bands.iter() {
-                let (a, b) = (band.start, band.end);
-                if p != beauty_out {
-                    let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
-                    let planes: Vec<&[f32]> = copies.iter().map(|n| fb.channel(n).expect("read above")).collect();
-                    timed(&mut stages.write, || writer.write_band(&planes, b - a))?;
-                    continue;
-                }
-                let context = bands.with_context(band);
-                let (c0, c1) = (context.start, context.end);
-                // A band with context rows holds only the network's inputs (a wide
-                // network's context is most of the band), and only until they are mapped;
-                // the copied channels are read for the inner rows after the network ran
-                // (held beside the context, they would cost more memory than a second
-                // decode costs time). A band without context rows (the whole frame, as a
-                // 1280×720 frame is at the default budget, whose band counts every channel
-                // of the file) decodes its rows once for both.
-                let once = context == *band && !copies.is_empty();
-                let names = if once { union(&needed, &copies) } else { needed.clone() };
-                let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
-                let started = std::time::Instant::now();
-                let inputs = self.mapping.extract(&fb)?;
-                let held = if once {
-                    for n in needed.iter().filter(|n| !copies.contains(n)) {
-                        fb.remove(n);
-                    }
-                    Some(fb)
-                } else {
-                    drop(fb);
-                    None
-                };
-                for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
-                    match totals.iter_mut().find(|t| t.0 == name) {
-                        Some(t) => {
-                            t.2.nonfinite += r.nonfinite;
-                            t.2.out_of_range += r.out_of_range;
+        let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
+        // The output is encoded on a thread of its own (OpenEXR compresses a 4K file's rows
+        // a chunk at a time), while the next bands are read and denoised; a band is handed
+        // over only when the previous one is written, so at most two are in flight.
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Written>(0);
+        let aovs = opts.aovs;
+        let parts = &parts;
+        let (produced, written) = std::thread::scope(|scope| {
+            let encoder = scope.spawn(move || -> Result<(FrameWriter, std::time::Duration), FileError> {
+                let (mut part, mut spent) = (0, std::time::Duration::ZERO);
+                for m in rx {
+                    let started = std::time::Instant::now();
+                    match m {
+                        Written::NextPart => {
+                            writer.next_part()?;
+                            part += 1;
                         }
-                        None => totals.push((name, range, r)),
+                        Written::Rows { rows, copies, denoised } => {
+                            let new = denoised.as_ref().map(|d| new_planes(d, aovs)).unwrap_or_default();
+                            let planes: Vec<&[f32]> = parts[part]
+                                .1
+                                .iter()
+                                .map(|(_, _, src)| match src {
+                                    Src::New(k) => new[*k],
+                                    Src::Input(n) => copies.channel(n).expect("read for it"),
+                                })
+                                .collect();
+                            writer.write_band(&planes, rows)?;
+                        }
+                    }
+                    spent += started.elapsed();
+                }
+                Ok((writer, spent))
+            });
+            let sink = Sink(tx);
+            let produced = (|| -> Result<(), FileError> {
+                // Parts are written one after another (as EXR requires), each streamed in bands;
+                // only the beauty's part runs the network.
+                for (p, (_, channels)) in parts.iter().enumerate() {
+                    if p > 0 {
+                        sink.send(Written::NextPart)?;
+                    }
+                    let copies: Vec<&str> = channels
+                        .iter()
+                        .filter_map(|(_, _, src)| match src {
+                            Src::Input(n) => Some(n.as_str()),
+                            Src::New(_) => None,
+                        })
+                        .collect();
+                    // A multi-scale model's network runs down the frame's bands as one stream;
+                    // a band's result comes out once the rows below it that it needs went in.
+                    let mut network = if p == beauty_out { FrameStream::new(denoiser, w, h) } else { None };
+                    let mut held_bands: VecDeque<Option<FrameBuffers>> = VecDeque::new();
+                    for band in bands.iter() {
+                        let (a, b) = (band.start, band.end);
+                        if p != beauty_out {
+                            let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
+                            sink.send(Written::Rows { rows: b - a, copies: fb, denoised: None })?;
+                            continue;
+                        }
+                        let context = bands.with_context(band);
+                        let (c0, c1) = (context.start, context.end);
+                        // A band with context rows holds only the network's inputs, and only until
+                        // they are mapped; the copied channels are read for the inner rows when
+                        // the band's result is written (held beside the context, they would cost
+                        // more memory than a second decode costs time). A band without context
+                        // rows (the whole frame, as a 1280×720 frame is at the default budget,
+                        // whose band counts every channel of the file) decodes its rows once for
+                        // both.
+                        let once = context == *band && !copies.is_empty();
+                        let names = if once { union(&needed, &copies) } else { needed.clone() };
+                        let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
+                        let started = std::time::Instant::now();
+                        let inputs = self.mapping.extract(&fb)?;
+                        let held = if once {
+                            for n in needed.iter().filter(|n| !copies.contains(n)) {
+                                fb.remove(n);
+                            }
+                            Some(fb)
+                        } else {
+                            drop(fb);
+                            None
+                        };
+                        for (name, range, r) in features::repairs(&inputs, a - c0..b - c0) {
+                            match totals.iter_mut().find(|t| t.0 == name) {
+                                Some(t) => {
+                                    t.2.nonfinite += r.nonfinite;
+                                    t.2.out_of_range += r.out_of_range;
+                                }
+                                None => totals.push((name, range, r)),
+                            }
+                        }
+                        let remainder = inputs.remainder(a - c0..b - c0);
+                        report.remainder.absorb_counts(&remainder);
+                        let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
+                        stages.features += started.elapsed();
+                        let mut out = Output { reader: &mut self.reader, sink: &sink, copies: &copies };
+                        if let Some(network) = network.as_mut() {
+                            timed(&mut stages.network, || network.push(&f, c0, band.clone(), remainder));
+                            drop(f);
+                            held_bands.push_back(held);
+                            while let Some((rows, d)) = network.ready() {
+                                done += 1;
+                                if !progress(Progress { done, total }) {
+                                    return Err(FileError::Denoise { path, cause: DenoiseError::Cancelled });
+                                }
+                                out.write(rows, d, held_bands.pop_front().flatten(), &mut stages)?;
+                            }
+                            continue;
+                        }
+                        let step = |p: Progress| progress(Progress { done: done + p.done, total });
+                        let mut d = timed(&mut stages.network, || denoiser.denoise_band(&f, a - c0..b - c0, &step))
+                            .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
+                        d.carry(&remainder);
+                        drop(f);
+                        done += bands.tiles_in(denoiser, band);
+                        out.write(band.clone(), d, held, &mut stages)?;
                     }
                 }
-                let remainder = inputs.remainder(a - c0..b - c0);
-                report.remainder.absorb_counts(&remainder);
-                let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
-                stages.features += started.elapsed();
-                let step = |p: Progress| progress(Progress { done: done + p.done, total });
-                let mut d = timed(&mut stages.network, || denoiser.denoise_band(&f, a - c0..b - c0, &step))
-                    .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
-                d.carry(&remainder);
-                drop(f);
-                done += bands.tiles_in(denoiser, band);
-                let new = new_planes(&d, opts.aovs);
-                let fb = match held {
-                    Some(fb) => fb,
-                    None => timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?,
-                };
-                let planes: Vec<&[f32]> = channels
-                    .iter()
-                    .map(|(_, _, src)| match src {
-                        Src::New(k) => new[*k],
-                        Src::Input(n) => fb.channel(n).expect("read above"),
-                    })
-                    .collect();
-                timed(&mut stages.write, || writer.write_band(&planes, b - a))?;
-            }
-        }
+                Ok(())
+            })();
+            drop(sink);
+            (produced, encoder.join())
+        });
+        // The encoder's own error first: the producer only saw it stop.
+        let (writer, spent) = match written {
+            Ok(w) => w?,
+            Err(panic) => std::panic::resume_unwind(panic),
+        };
+        produced?;
+        stages.write += spent;
         timed(&mut stages.write, || writer.commit())?;
         totals.retain(|t| t.2 != features::Repairs::default());
         report.repairs = totals;
@@ -398,6 +453,51 @@ impl FileJob {
             }
         }
         Ok(meter.finish())
+    }
+}
+
+/// What the encoder thread of [`FileJob::run`] writes, in order.
+enum Written {
+    /// Rows of the current part: its channels copied from `copies`, the new ones from
+    /// `denoised` (the beauty's part).
+    Rows { rows: usize, copies: FrameBuffers, denoised: Option<Box<Denoised>> },
+    /// The next part starts.
+    NextPart,
+}
+
+/// The producer's end of the encoder thread's queue.
+struct Sink(std::sync::mpsc::SyncSender<Written>);
+
+impl Sink {
+    /// Hands `m` over once the encoder has taken the previous one; an error when the
+    /// encoder stopped (its own error is the one reported).
+    fn send(&self, m: Written) -> Result<(), FileError> {
+        self.0.send(m).map_err(|_| FileError::Refused { path: PathBuf::new(), why: "the encoder stopped".into() })
+    }
+}
+
+/// Where a beauty part's results go, beside the channels copied from the input.
+struct Output<'a> {
+    reader: &'a mut FrameReader,
+    sink: &'a Sink,
+    copies: &'a [&'a str],
+}
+
+impl Output<'_> {
+    /// Hands rows `rows` to the encoder: the new layers from `d`, the copied channels
+    /// from `held` (their decoded rows) or read now.
+    fn write(
+        &mut self,
+        rows: std::ops::Range<usize>,
+        d: Denoised,
+        held: Option<FrameBuffers>,
+        stages: &mut Stages,
+    ) -> Result<(), FileError> {
+        let copies = match held {
+            Some(fb) => fb,
+            None => timed(&mut stages.read, || self.reader.read_band(Some(self.copies), rows.start, rows.end))?,
+        };
+        self.sink.send(Written::Rows { rows: rows.len(), copies, denoised: Some(Box::new(d)) })
     }
 }
 

@@ -17,6 +17,7 @@ mod bands;
 mod choice;
 mod file;
 mod request;
+mod stream;
 
 pub use bands::Bands;
 pub use choice::Denoisers;
@@ -171,6 +172,12 @@ impl Denoiser {
         Ok(Denoiser { model, options, pool, pyramid })
     }
 
+    /// Whether frames are streamed through the network in rows ([`stream::FrameStream`]):
+    /// a multi-scale model's are.
+    pub fn streams(&self) -> bool {
+        self.pyramid.is_some()
+    }
+
     /// The threads it runs on.
     pub fn threads(&self) -> usize {
         self.pool.current_num_threads()
@@ -233,6 +240,16 @@ impl Denoiser {
     /// network evaluation, and the results. [`Denoiser::denoise`] on a whole frame is one
     /// band.
     pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
+        if self.streams() {
+            // Both branches' streams, their output rows held until a band is complete (as
+            // many as a stream holds), and a band's result of nine planes.
+            let arch = &self.model.arch;
+            let (_, rw, _) = self.reach().region(0, width, width);
+            let held = crate::model::stream::held_rows(arch);
+            return Features::bytes(width, total_rows)
+                + 2 * arch.region_bytes(rw, held, rw, held)
+                + width * (6 * held + 9 * rows.len()) * 4;
+        }
         let tile =
             self.band_tiles(width, rows.clone(), total_rows).iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
         // Three results of three planes each.
@@ -327,7 +344,13 @@ impl Denoiser {
         for (i, t) in tiles.iter().enumerate() {
             let t_frame = Tile { y: t.y + y0, ..*t };
             let (d, s) = self.pool.install(|| -> Result<_, DenoiseError> {
-                Ok((self.branch(f, Branch::Diffuse, &t_frame)?, self.branch(f, Branch::Specular, &t_frame)?))
+                // The branches side by side: a streamed branch alone leaves cores idle
+                // between its small steps.
+                let (d, s) = rayon::join(
+                    || self.branch(f, Branch::Diffuse, &t_frame),
+                    || self.branch(f, Branch::Specular, &t_frame),
+                );
+                Ok((d?, s?))
             })?;
             for c in 0..3 {
                 for y in 0..t.h {
@@ -344,10 +367,12 @@ impl Denoiser {
         Ok(recompose(&albedo, &d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure))
     }
 
-    /// Context rows (or columns) a pixel's result depends on beyond the pixel itself: the
-    /// model's reach ([`crate::model::Architecture::reach`]).
+    /// Context rows each band of a streamed frame is read with: a multi-scale model's
+    /// network runs down the whole frame ([`stream::FrameStream`]), so only its features'
+    /// context ([`crate::features::CONTEXT`]); any other model's reach
+    /// ([`crate::model::Architecture::reach`]).
     pub fn halo(&self) -> usize {
-        self.model.arch.reach()
+        if self.pyramid.is_some() { crate::features::CONTEXT } else { self.model.arch.reach() }
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.
@@ -383,34 +408,48 @@ impl Denoiser {
 
 impl Denoiser {
     /// [`Denoiser::branch`] of a multi-scale network: the tile plus the receptive radius,
-    /// but at most [`crate::model::Architecture::border_radius`] beyond the frame's edges, extended right
-    /// and down to the pooling grid, evaluated whole; the tile's pixels kept. Each end of
-    /// the region depends only on the tile's position against the frame, never on the tile
-    /// size, so tiles give the whole frame's result.
+    /// but at most [`crate::model::Architecture::border_radius`] beyond the frame's edges,
+    /// extended right and down to the pooling grid, streamed through the network in rows
+    /// ([`crate::model::stream::Stream`]); the tile's pixels kept. Each end of the region
+    /// depends only on the tile's position against the frame, never on the tile size, so
+    /// tiles give the whole frame's result.
     fn branch_multiscale(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
         let arch = &self.model.arch;
         let reach = self.reach();
         let ((x0, rw, ox), (y0, rh, oy)) = (reach.region(t.x, t.w, f.width), reach.region(t.y, t.h, f.height));
-        let input = f.branch_input(b, x0, y0, rw, rh);
-        let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y0, rw, rh);
-        if b == Branch::Specular && arch.specular == Specular::Linear {
-            noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
-        }
         let [diffuse, specular] = self.pyramid.as_ref().expect("built in new for a multi-scale model");
         let weights = match b {
             Branch::Diffuse => diffuse,
             Branch::Specular => specular,
         };
-        let out = crate::model::pyramid::forward(arch, weights, input, noisy, rw, rh);
-        Ok(out.map(|plane| {
-            let mut v = Vec::with_capacity(t.w * t.h);
-            for y in oy..oy + t.h {
-                v.extend_from_slice(&plane[y * rw + ox..][..t.w]);
+        let mut stream = crate::model::stream::Stream::new(arch, weights, rw, rh);
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(t.w * t.h));
+        let colour = f.colour(b).each_ref().map(Vec::as_slice);
+        for y in (0..rh).step_by(STREAM_ROWS) {
+            let n = STREAM_ROWS.min(rh - y);
+            let input = f.branch_input(b, x0, y0 + y as isize, rw, n);
+            let mut noisy = f.region(&colour, x0, y0 + y as isize, rw, n);
+            if b == Branch::Specular && arch.specular == Specular::Linear {
+                noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
             }
-            v
-        }))
+            stream.push(
+                kernel::planes::Planes::from_vec(INPUT_CHANNELS, rw, n, input),
+                kernel::planes::Planes::from_vec(3, rw, n, noisy),
+            );
+            while let Some((first, rows)) = stream.take() {
+                for r in first.max(oy)..(first + rows.h).min(oy + t.h) {
+                    for (c, o) in out.iter_mut().enumerate() {
+                        o.extend_from_slice(&rows.plane(c)[(r - first) * rw + ox..][..t.w]);
+                    }
+                }
+            }
+        }
+        Ok(out)
     }
 }
+
+/// Rows of features pushed into a [`crate::model::stream::Stream`] at a time.
+const STREAM_ROWS: usize = 32;
 
 /// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), both
 /// divided by the inputs' `exposure`, and their sum, all finite.

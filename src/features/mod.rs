@@ -15,6 +15,10 @@ mod repairs;
 pub use exposure::{EXPOSURE_BLOCK, EXPOSURE_KEY, ExposureMeter, FrameStats, FrameStatsMeter, auto_exposure};
 pub use repairs::{Repairs, repairs};
 
+/// Context (pixels, each side) a pixel's network input depends on beyond the pixel: one
+/// for the backward-difference gradients, one for the 3×3 variance estimates.
+pub const CONTEXT: usize = 2;
+
 /// The paper's ε, used in albedo demodulation and recomposition.
 pub const EPSILON: f32 = 0.00316;
 /// Channels of one branch's input.

@@ -399,6 +399,10 @@ pub struct Output {
     raw: *mut ffi::kpcn_output,
 }
 
+// SAFETY: the handle is owned exclusively; OIIO's ImageOutput may be used from any
+// thread as long as calls are not concurrent, which `&mut self` on writes ensures.
+unsafe impl Send for Output {}
+
 impl Output {
     /// Creates the file with one part per spec and starts the first part. `encoders` > 1
     /// compresses on that many threads of OpenEXR's pool, which is process-wide (see

@@ -1,7 +1,7 @@
 //! A network's shape and what its inputs are made from: the architecture types that a
 //! model file's metadata records ([`super::format`]).
 
-use super::{ModelError, multiscale, pyramid};
+use super::{ModelError, multiscale, pyramid, stream};
 use crate::features::{self, Features, FrameStats, INPUT_CHANNELS};
 use crate::io::layout::KpcnInputs;
 use candle_core::Tensor;
@@ -350,10 +350,11 @@ impl Architecture {
 
     /// The network's **reach**: how far (pixels, each side) an output pixel depends on the
     /// input, the network's and the kernels' radius plus one pixel each for the
-    /// backward-difference gradients and the 3×3 variance estimates. Bands and tiles are
-    /// read with this much context; `kpcn model info` prints it.
+    /// backward-difference gradients and the 3×3 variance estimates
+    /// ([`features::CONTEXT`]). Tiles are read with this much context; `kpcn model info`
+    /// prints it.
     pub fn reach(&self) -> usize {
-        self.feature_radius().max(self.kernel_radius()) + 2
+        self.feature_radius().max(self.kernel_radius()) + features::CONTEXT
     }
 
     /// Context each side that a multi-scale region gets beyond the frame's edges (mirrored
@@ -392,11 +393,12 @@ impl Architecture {
     /// Estimated peak bytes to evaluate one branch on a `tw`×`th` tile whose region (the
     /// tile with its context) is `rw`×`rh`: the input region, the convolution's unfolded
     /// input (im2col), two activations, the logits and the noisy colour region
-    /// (multi-scale: [`pyramid::bytes_per_pixel`] of the region).
+    /// (multi-scale: the rows a [`super::stream::Stream`] holds, [`stream::held_rows`], of
+    /// [`pyramid::bytes_per_pixel`] each).
     pub fn region_bytes(&self, rw: usize, rh: usize, tw: usize, th: usize) -> usize {
         let p = rw * rh;
         if self.design == Design::MultiScale {
-            return p * pyramid::bytes_per_pixel(self);
+            return rw * rh.min(stream::held_rows(self)) * pyramid::bytes_per_pixel(self);
         }
         let widest = self.channels.max(INPUT_CHANNELS);
         let im2col = widest * self.conv_size * self.conv_size * p;

@@ -13,6 +13,7 @@ mod format;
 pub mod multiscale;
 pub mod pyramid;
 pub mod registry;
+pub mod stream;
 
 pub use architecture::{Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, Specular, Variances};
 pub use format::{FORMAT_VERSION, model_file_with_clamp, write_atomically};

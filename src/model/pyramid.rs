@@ -81,9 +81,9 @@ pub fn forward(
 }
 
 /// A branch's packed weights as a [`Backend`] on planes, which cannot fail.
-struct Region<'a> {
-    arch: &'a Architecture,
-    weights: &'a Weights,
+pub(super) struct Region<'a> {
+    pub(super) arch: &'a Architecture,
+    pub(super) weights: &'a Weights,
 }
 
 impl Backend for Region<'_> {
@@ -130,15 +130,28 @@ impl Backend for Region<'_> {
 /// Softmax kernels (the first `k²` planes of `logits`) applied to `colour`, the colour
 /// extended by replicating its edge pixels.
 fn apply_replicated(logits: &Planes, colour: &Planes, k: usize) -> Planes {
-    let (w, h, r) = (colour.w, colour.h, (k - 1) / 2);
-    let (pw, ph) = (w + 2 * r, h + 2 * r);
+    let (w, h) = (colour.w, colour.h);
+    apply_rows(logits, &|c, y| &colour.plane(c)[y * w..][..w], 0, h, k)
+}
+
+/// [`apply_replicated`] for rows `[a, a + logits.h)` of a colour `h` rows high, read a
+/// row at a time by `colour_row(channel, y)` (only rows within the kernel's radius of
+/// those are read): the colour extended by replicating the rows and columns at its edges.
+pub(super) fn apply_rows<'c>(
+    logits: &Planes,
+    colour_row: &(dyn Fn(usize, usize) -> &'c [f32] + Sync),
+    a: usize,
+    h: usize,
+    k: usize,
+) -> Planes {
+    let (w, n, r) = (logits.w, logits.h, (k - 1) / 2);
+    let (pw, ph) = (w + 2 * r, n + 2 * r);
     let padded: Vec<Vec<f32>> = (0..3)
         .into_par_iter()
         .map(|c| {
-            let src = colour.plane(c);
             let mut p = vec![0f32; pw * ph];
             p.par_chunks_mut(pw).enumerate().for_each(|(y, dst)| {
-                let row = &src[(y.saturating_sub(r)).min(h - 1) * w..][..w];
+                let row = colour_row(c, (a + y).saturating_sub(r).min(h - 1));
                 for (x, d) in dst.iter_mut().enumerate() {
                     *d = row[x.saturating_sub(r).min(w - 1)];
                 }
@@ -148,8 +161,8 @@ fn apply_replicated(logits: &Planes, colour: &Planes, k: usize) -> Planes {
         .collect();
     let padded: [Vec<f32>; 3] = padded.try_into().expect("three planes");
     let k2 = k * k;
-    let out = crate::kernel::apply(&logits.data[..k2 * w * h], &padded, k, w, h);
-    Planes::from_vec(3, w, h, out.concat())
+    let out = crate::kernel::apply(&logits.data[..k2 * w * n], &padded, k, w, n);
+    Planes::from_vec(3, w, n, out.concat())
 }
 
 #[cfg(test)]

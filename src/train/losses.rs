@@ -80,6 +80,22 @@ pub fn relmse_blocks(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
     plus_block_means(relmse(x, y)?, x, y)
 }
 
+/// [`relmse`] plus each 8×8 block mean's relative L2 error with the prediction's block
+/// mean (gradient stopped) as denominator: every pixel charged as the evaluator charges it
+/// (kept fireflies, light leaked into a dark texel), and light lost from a block charged by
+/// what is left of it, so dropping a whole bright region costs far more than keeping it
+/// (the block term of [`relmse_blocks`] caps that cost at 1), and the block means seek the
+/// mean of the plausible references rather than a darker value. Takes `(N, C, H, W)` tensors.
+pub fn relmse_light(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    let pixels = relmse(x, y)?;
+    let (_, _, h, w) = y.dims4()?;
+    if h < BLOCK || w < BLOCK {
+        return Ok(pixels);
+    }
+    let (bx, by) = (x.avg_pool2d(BLOCK)?, y.avg_pool2d(BLOCK)?);
+    Ok((pixels + relative_l2(&bx, &by)?)?)
+}
+
 /// `pixels` plus the relMSE of the `BLOCK`×`BLOCK` means of `x` against `y`'s (when the
 /// patch holds one).
 fn plus_block_means(pixels: Tensor, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
@@ -129,6 +145,11 @@ pub enum Loss {
     /// Relative L2 with the prediction's 5×5 local mean (gradient stopped) as its
     /// denominator plus the relMSE of 8×8 block means, plus L1 on tonemapped radiance.
     RelativeLocal,
+    /// relMSE with the reference as its denominator plus the relative L2 of 8×8 block
+    /// means with the prediction's block mean as denominator, plus L1 on tonemapped
+    /// radiance: the evaluator's charge per pixel, and light lost from a block charged by
+    /// what is left of it.
+    RelmseLight,
 }
 
 /// A loss term of a prediction against its target.
@@ -145,6 +166,7 @@ impl Loss {
             Loss::RelmseLocal => Some(relmse_local),
             Loss::RelmseBlocks => Some(relmse_blocks),
             Loss::RelativeLocal => Some(relative_local),
+            Loss::RelmseLight => Some(relmse_light),
         }
     }
 
@@ -294,7 +316,9 @@ mod tests {
         let y = image(&|r, c| if bright(r, c) { 5.0 } else { 0.0 });
         let eroded = image(&|r, c| if bright(r, c) { 4.7 } else { 0.0 });
         let kept = image(&|r, c| if bright(r, c) { 5.0 + if (r + c) % 2 == 0 { 0.3 } else { -0.3 } } else { 0.0 });
-        for (name, loss) in [("relmse-local", relmse_local as Term), ("relmse-blocks", relmse_blocks)] {
+        for (name, loss) in
+            [("relmse-local", relmse_local as Term), ("relmse-blocks", relmse_blocks), ("relmse-light", relmse_light)]
+        {
             let (lost, same) =
                 (scalar(&loss(&eroded, &y).unwrap()).unwrap(), scalar(&loss(&kept, &y).unwrap()).unwrap());
             assert!(lost > 1.2 * same, "{name}: light lost {lost}, light kept {same}");
@@ -320,6 +344,23 @@ mod tests {
         };
         assert!(ratio(relmse_local) < 0.3, "relmse-local charges {}× relmse", ratio(relmse_local));
         assert!(ratio(relmse_blocks) >= 1.0, "relmse-blocks charges {}× relmse", ratio(relmse_blocks));
+    }
+
+    #[test]
+    fn relmse_light_charges_a_dropped_bright_block_more_than_a_kept_one() {
+        // A bright 8×8 block on a dark patch: dropped to the background, or kept 130 % too
+        // bright. relmse-blocks charges both blocks at most 1 (its denominator is the
+        // reference's block mean) and so prefers dropping; relmse-light charges the drop by
+        // what is left of the block.
+        let image = |v: f32| {
+            let p: Vec<f32> = (0..256).map(|i| if i % 16 < 8 && i / 16 < 8 { v } else { 0.05 }).collect();
+            Tensor::new(p, &Device::Cpu).unwrap().reshape((1, 1, 16, 16)).unwrap()
+        };
+        let (y, dropped, kept) = (image(3.0), image(0.05), image(7.0));
+        let cost = |loss: Term, x: &Tensor| scalar(&loss(x, &y).unwrap()).unwrap();
+        assert!(cost(relmse_blocks, &dropped) < cost(relmse_blocks, &kept), "relmse-blocks prefers dropping");
+        let (drop, keep) = (cost(relmse_light, &dropped), cost(relmse_light, &kept));
+        assert!(drop > 10.0 * keep, "relmse-light: dropped {drop}, kept {keep}");
     }
 
     #[test]

@@ -1,0 +1,125 @@
+//! A multi-scale model's network streamed down a whole frame: each band's features go
+//! into one [`Stream`] per branch, whose region is the whole frame's, and a band's
+//! result comes out once the rows below it that it depends on have gone in. No row is
+//! evaluated twice, so bands need only the few context rows their features need
+//! ([`crate::features::CONTEXT`]), and the result is the whole frame's bit for bit.
+
+use super::{Denoised, Denoiser, recompose};
+use crate::features::{Branch, Features, INPUT_CHANNELS};
+use crate::io::layout::Remainder;
+use crate::kernel::planes::Planes;
+use crate::model::Specular;
+use crate::model::stream::Stream;
+use std::collections::VecDeque;
+use std::ops::Range;
+
+/// Region rows pushed into the streams at a time.
+const PUSH_ROWS: usize = 32;
+
+/// The network of a multi-scale [`Denoiser`] over one `width × height` frame, fed band
+/// by band, top to bottom.
+pub(super) struct FrameStream<'a> {
+    denoiser: &'a Denoiser,
+    /// The diffuse and the specular branch.
+    streams: [Stream<'a>; 2],
+    /// The region along each axis: first pixel (negative: mirrored beyond the frame),
+    /// length, and where the frame starts in it.
+    x: (isize, usize, usize),
+    y: (isize, usize, usize),
+    width: usize,
+    height: usize,
+    /// Region rows pushed.
+    pushed: usize,
+    /// Each branch's output rows from `emitted` on, the frame's columns only.
+    out: [[Vec<f32>; 3]; 2],
+    /// Bands pushed and not yet emitted: their rows, albedo and remainder.
+    pending: VecDeque<(Range<usize>, [Vec<f32>; 3], Remainder)>,
+    exposure: f32,
+}
+
+impl<'a> FrameStream<'a> {
+    /// The stream of `denoiser` over a `width × height` frame; `None` for a model that is
+    /// not multi-scale.
+    pub(super) fn new(denoiser: &'a Denoiser, width: usize, height: usize) -> Option<FrameStream<'a>> {
+        let [diffuse, specular] = denoiser.pyramid.as_ref()?;
+        let reach = denoiser.reach();
+        let (x, y) = (reach.region(0, width, width), reach.region(0, height, height));
+        let arch = &denoiser.model.arch;
+        Some(FrameStream {
+            denoiser,
+            streams: [Stream::new(arch, diffuse, x.1, y.1), Stream::new(arch, specular, x.1, y.1)],
+            x,
+            y,
+            width,
+            height,
+            pushed: 0,
+            out: Default::default(),
+            pending: VecDeque::new(),
+            exposure: 1.0,
+        })
+    }
+
+    /// Rows a band's features are read beyond the frame's top and bottom edges (mirrored),
+    /// so the first and the last band must be taller than this.
+    pub(super) fn mirrored_rows(denoiser: &Denoiser, height: usize) -> usize {
+        let (y0, rh, _) = denoiser.reach().region(0, height, height);
+        (y0.unsigned_abs()).max((y0 + rh as isize) as usize - height)
+    }
+
+    /// Pushes the rows of `band`: `f` holds the features of rows from `f_start` on (the
+    /// band and its context rows), `remainder` what the band's beauty holds beyond its
+    /// components. The first band also pushes the mirrored rows above the frame, the last
+    /// those below it.
+    pub(super) fn push(&mut self, f: &Features, f_start: usize, band: Range<usize>, remainder: Remainder) {
+        let (w, (x0, rw, ox), (y0, rh, oy)) = (self.width, self.x, self.y);
+        let end = if band.end == self.height { rh } else { (band.end as isize - y0) as usize };
+        let albedo =
+            std::array::from_fn(|c| f.albedo[c][(band.start - f_start) * w..(band.end - f_start) * w].to_vec());
+        self.pending.push_back((band, albedo, remainder));
+        self.exposure = f.exposure;
+        let (arch, height) = (&self.denoiser.model.arch, self.height);
+        while self.pushed < end {
+            let n = PUSH_ROWS.min(end - self.pushed);
+            let local = y0 + self.pushed as isize - f_start as isize;
+            let run = |b: Branch, stream: &mut Stream, out: &mut [Vec<f32>; 3]| {
+                let input = f.branch_input(b, x0, local, rw, n);
+                let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, local, rw, n);
+                if b == Branch::Specular && arch.specular == Specular::Linear {
+                    noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
+                }
+                stream.push(Planes::from_vec(INPUT_CHANNELS, rw, n, input), Planes::from_vec(3, rw, n, noisy));
+                while let Some((first, rows)) = stream.take() {
+                    for r in first.max(oy)..(first + rows.h).min(oy + height) {
+                        for (c, o) in out.iter_mut().enumerate() {
+                            o.extend_from_slice(&rows.plane(c)[(r - first) * rw + ox..][..w]);
+                        }
+                    }
+                }
+            };
+            let ([ds, ss], [dout, sout]) = (&mut self.streams, &mut self.out);
+            // The branches side by side: a stream alone leaves cores idle between its
+            // small steps.
+            self.denoiser
+                .pool
+                .install(|| rayon::join(|| run(Branch::Diffuse, ds, dout), || run(Branch::Specular, ss, sout)));
+            self.pushed += n;
+        }
+    }
+
+    /// The next band whose result is complete, in order.
+    pub(super) fn ready(&mut self) -> Option<(Range<usize>, Denoised)> {
+        let rows = self.out[0][0].len().min(self.out[1][0].len()) / self.width.max(1);
+        let first = self.pending.front()?.0.start;
+        if first + rows < self.pending.front()?.0.end {
+            return None;
+        }
+        let (band, albedo, remainder) = self.pending.pop_front()?;
+        let n = band.len() * self.width;
+        let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
+        let (d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
+        let domain = self.denoiser.model.arch.specular;
+        let mut d = recompose(&albedo, &d_hat, &s_hat, (self.width, band.len()), domain, self.exposure);
+        d.carry(&remainder);
+        Some((band, d))
+    }
+}
