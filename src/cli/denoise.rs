@@ -83,15 +83,15 @@ pub struct DenoiseArgs {
     #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
     /// Working memory in MB that grows with the frame: a band of rows in flight (its
-    /// network inputs and features, with the context rows the network reads) and its
-    /// tiles' network activations share it (from twice the default, a sequence keeps two
-    /// frames in flight, half each). A band is never thinner than twice its context rows,
-    /// nor a tile than twice the network's reach: a wide network exceeds a small budget
-    /// rather than running several times slower. Not counted: the process's fixed cost
-    /// (program, libraries, model, OpenEXR's row buffers for each decoding and encoding
-    /// thread, thread stacks, a 64 MB buffer pool; 200-450 MB). Measured peak RSS for a
-    /// 1920x1080 frame with 41 channels: 64 -> 858 MB, 512 -> 900, 1024 -> 1428 (one
-    /// band: 1.3x faster); 3840x2160 at the default: 906 MB.
+    /// network inputs and features), the rows the network holds as it streams down the
+    /// frame (about half its reach, `kpcn model info`, times the frame's width, for each
+    /// branch) and a band being written share it (from twice the default, a sequence keeps
+    /// two frames in flight, half each). Below what the streams need (a 3840-wide frame:
+    /// about 400 MB), bands run in tiles with the network's context rows instead, never
+    /// thinner than twice the reach: slower, within the budget. Not counted: the process's
+    /// fixed cost (program, libraries, model, OpenEXR's row buffers for each decoding and
+    /// encoding thread, thread stacks; 200-450 MB). Measured peak RSS with the default:
+    /// 1920x1080 with 41 channels 627 MB, 3840x2160 910 MB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.

@@ -43,17 +43,17 @@ impl Bands {
         // A band thinner than its context rows would spend most of its work on them (the
         // ladder's 194 rows each side at 4K: 5× the frame's work in 96-row bands): then a
         // band is twice the context, over budget rather than several times slower.
-        let halo = denoiser.halo();
+        let halo = denoiser.halo(width);
         let by_budget = by_budget.max(2 * halo).max(16);
         // A streamed frame of several bands decodes its rows for the statistics and again
         // for the copied channels whatever the bands' size, so its bands are short: they
         // hold the features and the rows being written, beside the streams.
         let by_budget =
-            if denoiser.streams() && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
+            if denoiser.streams(width) && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
         let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
         let rows = rows.min(height.max(1));
         let bands = (0..height).step_by(rows).map(|a| a..(a + rows).min(height)).collect();
-        let mirrored = if denoiser.streams() { FrameStream::mirrored_rows(denoiser, height) + 1 } else { 0 };
+        let mirrored = if denoiser.streams(width) { FrameStream::mirrored_rows(denoiser, height) + 1 } else { 0 };
         Bands { bands, halo, mirrored, width, height }
     }
 
@@ -99,7 +99,7 @@ impl Bands {
 
     /// Tiles of `band` (a streamed frame counts a band as one).
     pub fn tiles_in(&self, denoiser: &Denoiser, band: &Range<usize>) -> usize {
-        if denoiser.streams() {
+        if denoiser.streams(self.width) {
             return 1;
         }
         denoiser.band_tiles(self.width, self.inner(band), self.with_context(band).len()).len()

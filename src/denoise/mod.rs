@@ -172,10 +172,19 @@ impl Denoiser {
         Ok(Denoiser { model, options, pool, pyramid })
     }
 
-    /// Whether frames are streamed through the network in rows ([`stream::FrameStream`]):
-    /// a multi-scale model's are.
-    pub fn streams(&self) -> bool {
-        self.pyramid.is_some()
+    /// Whether `width`-wide frames run through the network as one stream of rows down the
+    /// frame: a multi-scale model's do when both branches' streams fit `max_memory_mb`;
+    /// narrower budgets run the bands in tiles, with context rows.
+    pub fn streams(&self, width: usize) -> bool {
+        self.pyramid.is_some() && self.stream_bytes(width) <= self.options.max_memory_mb << 20
+    }
+
+    /// What both branches' streams hold on a `width`-wide frame.
+    fn stream_bytes(&self, width: usize) -> usize {
+        let arch = &self.model.arch;
+        let (_, rw, _) = self.reach().region(0, width, width);
+        let held = crate::model::stream::held_rows(arch);
+        2 * arch.region_bytes(rw, held, rw, held)
     }
 
     /// The threads it runs on.
@@ -228,7 +237,7 @@ impl Denoiser {
                 tile::Axis { start: rows.start, len: h, total: total_rows },
                 &self.reach(),
                 16usize.max(arch.alignment()),
-                |rw, rh, tw, th| arch.region_bytes(rw, rh, tw, th),
+                |rw, rh, tw, th| BRANCHES_AT_ONCE * arch.region_bytes(rw, rh, tw, th),
                 budget,
             ),
         };
@@ -240,14 +249,12 @@ impl Denoiser {
     /// network evaluation, and the results. [`Denoiser::denoise`] on a whole frame is one
     /// band.
     pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
-        if self.streams() {
+        if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
             // many as a stream holds), and a band's result of nine planes.
-            let arch = &self.model.arch;
-            let (_, rw, _) = self.reach().region(0, width, width);
-            let held = crate::model::stream::held_rows(arch);
+            let held = crate::model::stream::held_rows(&self.model.arch);
             return Features::bytes(width, total_rows)
-                + 2 * arch.region_bytes(rw, held, rw, held)
+                + self.stream_bytes(width)
                 + width * (6 * held + 9 * rows.len()) * 4;
         }
         let tile =
@@ -259,7 +266,7 @@ impl Denoiser {
     /// The network's working bytes on tile `t` (its region with context).
     fn tile_bytes(&self, t: &Tile) -> usize {
         let r = self.reach().radius;
-        self.model.arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h)
+        BRANCHES_AT_ONCE * self.model.arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h)
     }
 
     /// Denoises one frame. `progress` is called after every tile, on the calling thread;
@@ -367,12 +374,12 @@ impl Denoiser {
         Ok(recompose(&albedo, &d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure))
     }
 
-    /// Context rows each band of a streamed frame is read with: a multi-scale model's
-    /// network runs down the whole frame ([`stream::FrameStream`]), so only its features'
-    /// context ([`crate::features::CONTEXT`]); any other model's reach
+    /// Context rows each band of a streamed `width`-wide frame is read with: where the
+    /// network runs down the whole frame ([`Denoiser::streams`]), only its features'
+    /// context ([`crate::features::CONTEXT`]); else the model's reach
     /// ([`crate::model::Architecture::reach`]).
-    pub fn halo(&self) -> usize {
-        if self.pyramid.is_some() { crate::features::CONTEXT } else { self.model.arch.reach() }
+    pub fn halo(&self, width: usize) -> usize {
+        if self.streams(width) { crate::features::CONTEXT } else { self.model.arch.reach() }
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.
@@ -424,29 +431,17 @@ impl Denoiser {
         };
         let mut stream = crate::model::stream::Stream::new(arch, weights, rw, rh);
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(t.w * t.h));
-        let colour = f.colour(b).each_ref().map(Vec::as_slice);
+        let win = stream::Window { x0, rw, ox, w: t.w, keep: oy..oy + t.h };
         for y in (0..rh).step_by(STREAM_ROWS) {
             let n = STREAM_ROWS.min(rh - y);
-            let input = f.branch_input(b, x0, y0 + y as isize, rw, n);
-            let mut noisy = f.region(&colour, x0, y0 + y as isize, rw, n);
-            if b == Branch::Specular && arch.specular == Specular::Linear {
-                noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
-            }
-            stream.push(
-                kernel::planes::Planes::from_vec(INPUT_CHANNELS, rw, n, input),
-                kernel::planes::Planes::from_vec(3, rw, n, noisy),
-            );
-            while let Some((first, rows)) = stream.take() {
-                for r in first.max(oy)..(first + rows.h).min(oy + t.h) {
-                    for (c, o) in out.iter_mut().enumerate() {
-                        o.extend_from_slice(&rows.plane(c)[(r - first) * rw + ox..][..t.w]);
-                    }
-                }
-            }
+            stream::feed(arch, f, b, &mut stream, &win, (y0 + y as isize, n), &mut out);
         }
         Ok(out)
     }
 }
+
+/// Branches a tile evaluates at once: both, side by side ([`Denoiser::denoise_rows`]).
+const BRANCHES_AT_ONCE: usize = 2;
 
 /// Rows of features pushed into a [`crate::model::stream::Stream`] at a time.
 const STREAM_ROWS: usize = 32;

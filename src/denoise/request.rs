@@ -286,7 +286,7 @@ impl FileRequest {
                 None => Note::Remainder { input: input.clone(), share: remainder.share(), pixels: remainder.pixels },
             });
         }
-        let (rows, total) = (band.min(h), (band + 2 * denoiser.halo()).min(h));
+        let (rows, total) = (band.min(h), (band + 2 * denoiser.halo(w)).min(h));
         let c0 = (total - rows) / 2;
         let tile = denoiser.band_tiles(w, c0..c0 + rows, total).first().map(|t| (t.w, t.h));
         Ok(Outcome {

@@ -38,9 +38,12 @@ pub(super) struct FrameStream<'a> {
 }
 
 impl<'a> FrameStream<'a> {
-    /// The stream of `denoiser` over a `width × height` frame; `None` for a model that is
-    /// not multi-scale.
+    /// The stream of `denoiser` over a `width × height` frame; `None` where it does not
+    /// stream such frames ([`Denoiser::streams`]).
     pub(super) fn new(denoiser: &'a Denoiser, width: usize, height: usize) -> Option<FrameStream<'a>> {
+        if !denoiser.streams(width) {
+            return None;
+        }
         let [diffuse, specular] = denoiser.pyramid.as_ref()?;
         let reach = denoiser.reach();
         let (x, y) = (reach.region(0, width, width), reach.region(0, height, height));
@@ -81,20 +84,9 @@ impl<'a> FrameStream<'a> {
         while self.pushed < end {
             let n = PUSH_ROWS.min(end - self.pushed);
             let local = y0 + self.pushed as isize - f_start as isize;
+            let win = Window { x0, rw, ox, w, keep: oy..oy + height };
             let run = |b: Branch, stream: &mut Stream, out: &mut [Vec<f32>; 3]| {
-                let input = f.branch_input(b, x0, local, rw, n);
-                let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, local, rw, n);
-                if b == Branch::Specular && arch.specular == Specular::Linear {
-                    noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
-                }
-                stream.push(Planes::from_vec(INPUT_CHANNELS, rw, n, input), Planes::from_vec(3, rw, n, noisy));
-                while let Some((first, rows)) = stream.take() {
-                    for r in first.max(oy)..(first + rows.h).min(oy + height) {
-                        for (c, o) in out.iter_mut().enumerate() {
-                            o.extend_from_slice(&rows.plane(c)[(r - first) * rw + ox..][..w]);
-                        }
-                    }
-                }
+                feed(arch, f, b, stream, &win, (local, n), out)
             };
             let ([ds, ss], [dout, sout]) = (&mut self.streams, &mut self.out);
             // The branches side by side: a stream alone leaves cores idle between its
@@ -121,5 +113,42 @@ impl<'a> FrameStream<'a> {
         let mut d = recompose(&albedo, &d_hat, &s_hat, (self.width, band.len()), domain, self.exposure);
         d.carry(&remainder);
         Some((band, d))
+    }
+}
+
+/// Where a stream's region lies and what of its output is kept: the region's first column
+/// (negative: mirrored) and width; the kept columns `[ox, ox + w)` and region rows `keep`.
+pub(super) struct Window {
+    pub(super) x0: isize,
+    pub(super) rw: usize,
+    pub(super) ox: usize,
+    pub(super) w: usize,
+    pub(super) keep: Range<usize>,
+}
+
+/// Pushes `n` rows of branch `b` into `stream`, from row `y` of `f` (the columns of
+/// `win`'s region), and appends to `out` the output rows that came out within `win`.
+pub(super) fn feed(
+    arch: &crate::model::Architecture,
+    f: &Features,
+    b: Branch,
+    stream: &mut Stream,
+    win: &Window,
+    (y, n): (isize, usize),
+    out: &mut [Vec<f32>; 3],
+) {
+    let (x0, rw) = (win.x0, win.rw);
+    let input = f.branch_input(b, x0, y, rw, n);
+    let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y, rw, n);
+    if b == Branch::Specular && arch.specular == Specular::Linear {
+        noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
+    }
+    stream.push(Planes::from_vec(INPUT_CHANNELS, rw, n, input), Planes::from_vec(3, rw, n, noisy));
+    while let Some((first, rows)) = stream.take() {
+        for r in first.max(win.keep.start)..(first + rows.h).min(win.keep.end) {
+            for (c, o) in out.iter_mut().enumerate() {
+                o.extend_from_slice(&rows.plane(c)[(r - first) * rw + win.ox..][..win.w]);
+            }
+        }
     }
 }
