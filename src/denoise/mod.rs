@@ -228,7 +228,7 @@ impl Denoiser {
         // mostly context (the default's 192 px at a 64 MB budget: 32-px tiles, 24× slower):
         // over budget rather than several times slower, as bands are.
         let side = (2 * self.reach().radius).next_multiple_of(arch.alignment());
-        let budget = budget.max(arch.region_bytes(2 * side, 2 * side, side, side));
+        let budget = budget.max(BRANCHES_AT_ONCE * arch.region_bytes(2 * side, 2 * side, side, side));
         let h = rows.end.saturating_sub(rows.start);
         let (tw, th) = match self.options.tile_size {
             Some(t) => (t.next_multiple_of(arch.alignment()), t.next_multiple_of(arch.alignment())),
