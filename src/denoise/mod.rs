@@ -432,8 +432,8 @@ impl Denoiser {
         let mut stream = crate::model::stream::Stream::new(arch, weights, rw, rh);
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(t.w * t.h));
         let win = stream::Window { x0, rw, ox, w: t.w, keep: oy..oy + t.h };
-        for y in (0..rh).step_by(STREAM_ROWS) {
-            let n = STREAM_ROWS.min(rh - y);
+        for y in (0..rh).step_by(stream::PUSH_ROWS) {
+            let n = stream::PUSH_ROWS.min(rh - y);
             stream::feed(arch, f, b, &mut stream, &win, (y0 + y as isize, n), &mut out);
         }
         Ok(out)
@@ -442,9 +442,6 @@ impl Denoiser {
 
 /// Branches a tile evaluates at once: both, side by side ([`Denoiser::denoise_rows`]).
 const BRANCHES_AT_ONCE: usize = 2;
-
-/// Rows of features pushed into a [`crate::model::stream::Stream`] at a time.
-const STREAM_ROWS: usize = 32;
 
 /// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), both
 /// divided by the inputs' `exposure`, and their sum, all finite.

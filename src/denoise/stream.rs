@@ -13,8 +13,8 @@ use crate::model::stream::Stream;
 use std::collections::VecDeque;
 use std::ops::Range;
 
-/// Region rows pushed into the streams at a time.
-const PUSH_ROWS: usize = 32;
+/// Region rows pushed into a stream at a time.
+pub(super) const PUSH_ROWS: usize = 32;
 
 /// The network of a multi-scale [`Denoiser`] over one `width × height` frame, fed band
 /// by band, top to bottom.

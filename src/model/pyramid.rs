@@ -1,7 +1,8 @@
-//! Inference of the multi-scale network ([`multiscale::run`], which defines it once) on
-//! one region: a [`multiscale::Backend`] on plain planes with the same kernels as
-//! training, [`crate::kernel::conv`] convolutions and [`crate::kernel::apply`] kernel
-//! application at every scale, and none of candle's graph.
+//! Inference of the multi-scale network ([`multiscale::run`], which defines it once): a
+//! [`multiscale::Backend`] on plain planes with the same kernels as training,
+//! [`crate::kernel::conv`] convolutions and [`crate::kernel::apply`] kernel application at
+//! every scale, and none of candle's graph. [`super::stream::Stream`] runs it on windows
+//! of rows; the tests here and there run it on a whole region at once.
 
 use super::multiscale::{self, Backend};
 use super::{Architecture, BranchWeights, ModelError};
@@ -26,8 +27,9 @@ pub fn bytes_per_pixel(arch: &Architecture) -> usize {
 pub struct Weights {
     /// Every layer, in the model file's order.
     layers: Vec<ConvLayer>,
-    /// The full-resolution head split in two (see [`forward`]): the part applied to the
-    /// upsampled coarse features (without bias) and the part applied to `E_0`.
+    /// The full-resolution head split in two (see `conv_up_concat` below): the part
+    /// applied to the upsampled coarse features (without bias) and the part applied to
+    /// `E_0`.
     head0: [ConvLayer; 2],
 }
 
@@ -61,7 +63,9 @@ impl Weights {
 }
 
 /// Denoised `c̃` (three `w × h` planes) of a `w × h` region (sides multiples of
-/// [`Architecture::alignment`]): `input` its 27 CHW feature planes, `noisy` its `c̃`.
+/// [`Architecture::alignment`]) evaluated whole: `input` its 27 CHW feature planes,
+/// `noisy` its `c̃`. The reference the streamed evaluation is tested against.
+#[cfg(test)]
 pub fn forward(
     arch: &Architecture,
     weights: &Weights,

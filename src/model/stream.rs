@@ -7,9 +7,9 @@
 //!
 //! The network is recorded once from [`multiscale::run`] (its only definition) into a
 //! graph of operations, each evaluated on windows of its inputs' rows by the same
-//! functions [`super::pyramid::forward`] calls on the whole region; a window holds every
-//! row the operation's outputs depend on, or stops where the region does, so each row
-//! equals the whole region's bit for bit.
+//! functions the whole region's evaluation calls (`pyramid::forward`, in tests); a window
+//! holds every row the operation's outputs depend on, or stops where the region does, so
+//! each row equals the whole region's bit for bit.
 
 use super::Architecture;
 use super::multiscale::{self, Backend};
