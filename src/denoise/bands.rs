@@ -45,9 +45,9 @@ impl Bands {
         // band is twice the context, over budget rather than several times slower.
         let halo = denoiser.halo(width);
         let by_budget = by_budget.max(2 * halo).max(16);
-        // A streamed frame of several bands decodes its rows for the statistics and again
-        // for the copied channels whatever the bands' size, so its bands are short: they
-        // hold the features and the rows being written, beside the streams.
+        // A streamed frame of several bands decodes its rows for the statistics first
+        // whatever the bands' size, so its bands are short: they hold the features and the
+        // rows being written, beside the streams.
         let by_budget =
             if denoiser.streams(width) && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
         let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
@@ -108,6 +108,23 @@ impl Bands {
     /// Tiles of the frame.
     pub fn total_tiles(&self, denoiser: &Denoiser) -> usize {
         self.iter().map(|b| self.tiles_in(denoiser, b)).sum()
+    }
+
+    /// Bytes that `channels` decoded planes take when a streamed frame keeps them from a
+    /// band's decode until its result comes out: the rows the stream holds back, the band
+    /// being read and the band on its way to the encoder. `None` when they do not fit the
+    /// memory budget beside the largest band's working memory, or the frame is not
+    /// streamed in several bands (one band is decoded once anyway).
+    pub fn held_copies_bytes(&self, denoiser: &Denoiser, channels: usize) -> Option<usize> {
+        if self.len() < 2 || !denoiser.streams(self.width) {
+            return None;
+        }
+        let band = self.iter().max_by_key(|b| self.with_context(b).len())?;
+        let rows = self.with_context(band).len();
+        let held_rows = (crate::model::stream::held_rows(&denoiser.model.arch) + 2 * self.rows()).min(self.height);
+        let held = channels * 4 * self.width * held_rows;
+        let working = KpcnInputs::bytes(self.width, rows) + denoiser.working_bytes(self.width, self.inner(band), rows);
+        (working + held <= denoiser.options.max_memory_mb << 20).then_some(held)
     }
 
     /// Checks, before any work, that the largest band can be had: its network inputs and
@@ -240,5 +257,24 @@ mod tests {
                 assert!(bits(g) == bits(w), "{model}: channel {c} differs");
             }
         }
+    }
+
+    #[test]
+    fn a_streamed_frame_keeps_its_copied_channels_only_within_the_budget() {
+        let d = |mb| {
+            Denoiser::new(Model::resolve("balanced").unwrap(), Options { max_memory_mb: mb, ..Options::default() })
+        };
+        let d512 = d(512).unwrap();
+        // One band decodes once anyway.
+        assert_eq!(Bands::new(&d512, 1280, 720, None).held_copies_bytes(&d512, 41), None);
+        // A 1080p file's 41 channels fit the default budget beside its streams; a 4K
+        // file's do not, and with twice the budget they do.
+        let hd = Bands::new(&d512, 1920, 1080, None);
+        let kept = hd.held_copies_bytes(&d512, 41).expect("1080p keeps them");
+        let held_rows = crate::model::stream::held_rows(&d512.model.arch) + 2 * hd.rows();
+        assert_eq!(kept, 41 * 4 * 1920 * held_rows);
+        assert_eq!(Bands::new(&d512, 3840, 2160, None).held_copies_bytes(&d512, 41), None);
+        let d1024 = d(1024).unwrap();
+        assert!(Bands::new(&d1024, 3840, 2160, None).held_copies_bytes(&d1024, 41).is_some());
     }
 }

@@ -2,9 +2,11 @@
 //! whatever the frame size: a 4K frame is never held whole.
 //!
 //! Each band is read with [`Denoiser::halo`] context rows above and below, preprocessed
-//! with the whole frame's depth scale (one cheap pass over the depth channel first), and
-//! its inner rows are denoised and written straight after a copy of the input channels.
-//! The result equals denoising the whole frame at once (tested bit for bit).
+//! with the whole frame's statistics (one pass over the depth, and for auto-exposed models
+//! the colour, first), and its inner rows are denoised and written beside a copy of the
+//! input channels, on an encoder thread: copied from the band's own decode where the
+//! budget holds them until its result is out, else decoded again by the encoder. The
+//! result equals denoising the whole frame at once (tested bit for bit).
 
 use super::stream::FrameStream;
 use super::{Bands, Component, DenoiseError, Denoised, Denoiser, Progress};
@@ -239,8 +241,15 @@ impl FileJob {
         // The largest band's working memory (context rows included) and, beside it, a
         // band's copied channels and result held by the encoder (with several bands, one
         // more on its way there), checked before the output exists.
-        let in_flight = (self.reader.channel_names().count() + 9) * if bands.len() > 1 { 2 } else { 1 };
-        bands.reserve(denoiser, in_flight, 0).map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
+        let channels = self.reader.channel_names().count();
+        // A streamed frame's bands keep the channels they copy from their one decode until
+        // their result comes out, where that fits the budget (else they are decoded again
+        // when written: a third more decoding).
+        let kept = bands.held_copies_bytes(denoiser, channels);
+        let in_flight = (channels + 9) * if bands.len() > 1 { 2 } else { 1 };
+        bands
+            .reserve(denoiser, in_flight, kept.unwrap_or(0))
+            .map_err(|cause| FileError::Denoise { path: path.clone(), cause })?;
         let needed = self.mapping.channels();
         let needed: Vec<&str> = needed.iter().map(String::as_str).collect();
 
@@ -297,6 +306,16 @@ impl FileJob {
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
         let mut report = FileReport::default();
+        // The encoder decodes the copied channels no band kept with handles of its own, so
+        // that this runs beside the network, not between its bands (opened before the
+        // output, as the producer's are).
+        let mut copier = if bands.len() > 1 || input_parts.len() > 1 {
+            let mut r = FrameReader::open(&path)?;
+            r.set_decoders(denoiser.threads())?;
+            Some(r)
+        } else {
+            None
+        };
         let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
         // The output is encoded on a thread of its own (OpenEXR compresses a 4K file's rows
         // a chunk at a time), while the next bands are read and denoised; a band is handed
@@ -305,29 +324,44 @@ impl FileJob {
         let aovs = opts.aovs;
         let parts = &parts;
         let (produced, written) = std::thread::scope(|scope| {
-            let encoder = scope.spawn(move || -> Result<(FrameWriter, std::time::Duration), FileError> {
-                let (mut part, mut spent) = (0, std::time::Duration::ZERO);
+            let encoder = scope.spawn(move || -> Result<(FrameWriter, [std::time::Duration; 2]), FileError> {
+                let (mut part, mut spent) = (0, [std::time::Duration::ZERO; 2]);
                 for m in rx {
-                    let started = std::time::Instant::now();
                     match m {
                         Written::NextPart => {
+                            let started = std::time::Instant::now();
                             writer.next_part()?;
                             part += 1;
+                            spent[1] += started.elapsed();
                         }
                         Written::Rows { rows, copies, denoised } => {
+                            let channels = &parts[part].1;
+                            let names = copied(channels);
+                            // Decoded here when no band kept them (the copier is opened for every
+                            // frame of several bands or parts; a one-band frame keeps them).
+                            let copies = match (copies, copier.as_mut()) {
+                                (Some(fb), _) => fb,
+                                (None, Some(copier)) if !names.is_empty() => {
+                                    timed(&mut spent[0], || copier.read_band(Some(&names), rows.start, rows.end))?
+                                }
+                                (None, _) => FrameBuffers::new(0, 0),
+                            };
+                            let started = std::time::Instant::now();
                             let new = denoised.as_ref().map(|d| new_planes(d, aovs)).unwrap_or_default();
-                            let planes: Vec<&[f32]> = parts[part]
-                                .1
+                            let planes = channels
                                 .iter()
                                 .map(|(_, _, src)| match src {
-                                    Src::New(k) => new[*k],
-                                    Src::Input(n) => copies.channel(n).expect("read for it"),
+                                    Src::New(k) => Ok(new[*k]),
+                                    Src::Input(n) => copies.channel(n).ok_or_else(|| IoError::NoSuchChannel {
+                                        path: copies.display_path(),
+                                        channel: n.clone(),
+                                    }),
                                 })
-                                .collect();
-                            writer.write_band(&planes, rows)?;
+                                .collect::<Result<Vec<&[f32]>, IoError>>()?;
+                            writer.write_band(&planes, rows.len())?;
+                            spent[1] += started.elapsed();
                         }
                     }
-                    spent += started.elapsed();
                 }
                 Ok((writer, spent))
             });
@@ -339,13 +373,7 @@ impl FileJob {
                     if p > 0 {
                         sink.send(Written::NextPart)?;
                     }
-                    let copies: Vec<&str> = channels
-                        .iter()
-                        .filter_map(|(_, _, src)| match src {
-                            Src::Input(n) => Some(n.as_str()),
-                            Src::New(_) => None,
-                        })
-                        .collect();
+                    let copies = copied(channels);
                     // A multi-scale model's network runs down the frame's bands as one stream;
                     // a band's result comes out once the rows below it that it needs went in.
                     let mut network = if p == beauty_out { FrameStream::new(denoiser, w, h) } else { None };
@@ -353,20 +381,18 @@ impl FileJob {
                     for band in bands.iter() {
                         let (a, b) = (band.start, band.end);
                         if p != beauty_out {
-                            let fb = timed(&mut stages.read, || self.reader.read_band(Some(&copies), a, b))?;
-                            sink.send(Written::Rows { rows: b - a, copies: fb, denoised: None })?;
+                            sink.send(Written::Rows { rows: a..b, copies: None, denoised: None })?;
                             continue;
                         }
                         let context = bands.with_context(band);
                         let (c0, c1) = (context.start, context.end);
-                        // A band with context rows holds only the network's inputs, and only until
-                        // they are mapped; the copied channels are read for the inner rows when
-                        // the band's result is written (held beside the context, they would cost
-                        // more memory than a second decode costs time). A band without context
-                        // rows (the whole frame, as a 1280×720 frame is at the default budget,
-                        // whose band counts every channel of the file) decodes its rows once for
-                        // both.
-                        let once = context == *band && !copies.is_empty();
+                        // A band decodes its rows once for the network's inputs and the copied
+                        // channels, whose inner rows it keeps until its result is written: a
+                        // band without context rows (the whole frame, as a 1280×720 frame is at
+                        // the default budget), or a streamed frame's where they fit the budget
+                        // (`kept`). Otherwise it holds only the network's inputs, until they are
+                        // mapped, and the copied channels are read again when it is written.
+                        let once = !copies.is_empty() && (context == *band || kept.is_some());
                         let names = if once { union(&needed, &copies) } else { needed.clone() };
                         let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
                         let started = std::time::Instant::now();
@@ -375,6 +401,7 @@ impl FileJob {
                             for n in needed.iter().filter(|n| !copies.contains(n)) {
                                 fb.remove(n);
                             }
+                            fb.keep_rows(a - c0..b - c0);
                             Some(fb)
                         } else {
                             drop(fb);
@@ -393,7 +420,6 @@ impl FileJob {
                         report.remainder.absorb_counts(&remainder);
                         let f = denoiser.features(std::borrow::Cow::Owned(inputs), whole);
                         stages.features += started.elapsed();
-                        let mut out = Output { reader: &mut self.reader, sink: &sink, copies: &copies };
                         if let Some(network) = network.as_mut() {
                             timed(&mut stages.network, || network.push(&f, c0, band.clone(), remainder));
                             drop(f);
@@ -403,7 +429,11 @@ impl FileJob {
                                 if !progress(Progress { done, total }) {
                                     return Err(FileError::Denoise { path, cause: DenoiseError::Cancelled });
                                 }
-                                out.write(rows, d, held_bands.pop_front().flatten(), &mut stages)?;
+                                sink.send(Written::Rows {
+                                    rows,
+                                    copies: held_bands.pop_front().flatten(),
+                                    denoised: Some(Box::new(d)),
+                                })?;
                             }
                             continue;
                         }
@@ -413,7 +443,7 @@ impl FileJob {
                         d.carry(&remainder);
                         drop(f);
                         done += bands.tiles_in(denoiser, band);
-                        out.write(band.clone(), d, held, &mut stages)?;
+                        sink.send(Written::Rows { rows: band.clone(), copies: held, denoised: Some(Box::new(d)) })?;
                     }
                 }
                 Ok(())
@@ -422,12 +452,13 @@ impl FileJob {
             (produced, encoder.join())
         });
         // The encoder's own error first: the producer only saw it stop.
-        let (writer, spent) = match written {
+        let (writer, [read, write]) = match written {
             Ok(w) => w?,
             Err(panic) => std::panic::resume_unwind(panic),
         };
         produced?;
-        stages.write += spent;
+        stages.read += read;
+        stages.write += write;
         timed(&mut stages.write, || writer.commit())?;
         totals.retain(|t| t.2 != features::Repairs::default());
         report.repairs = totals;
@@ -458,9 +489,9 @@ impl FileJob {
 
 /// What the encoder thread of [`FileJob::run`] writes, in order.
 enum Written {
-    /// Rows of the current part: its channels copied from `copies`, the new ones from
-    /// `denoised` (the beauty's part).
-    Rows { rows: usize, copies: FrameBuffers, denoised: Option<Box<Denoised>> },
+    /// Rows of the current part: its channels copied from `copies` (decoded by the encoder
+    /// when `None`), the new ones from `denoised` (the beauty's part).
+    Rows { rows: std::ops::Range<usize>, copies: Option<FrameBuffers>, denoised: Option<Box<Denoised>> },
     /// The next part starts.
     NextPart,
 }
@@ -476,29 +507,15 @@ impl Sink {
     }
 }
 
-/// Where a beauty part's results go, beside the channels copied from the input.
-struct Output<'a> {
-    reader: &'a mut FrameReader,
-    sink: &'a Sink,
-    copies: &'a [&'a str],
-}
-
-impl Output<'_> {
-    /// Hands rows `rows` to the encoder: the new layers from `d`, the copied channels
-    /// from `held` (their decoded rows) or read now.
-    fn write(
-        &mut self,
-        rows: std::ops::Range<usize>,
-        d: Denoised,
-        held: Option<FrameBuffers>,
-        stages: &mut Stages,
-    ) -> Result<(), FileError> {
-        let copies = match held {
-            Some(fb) => fb,
-            None => timed(&mut stages.read, || self.reader.read_band(Some(self.copies), rows.start, rows.end))?,
-        };
-        self.sink.send(Written::Rows { rows: rows.len(), copies, denoised: Some(Box::new(d)) })
-    }
+/// The input channels an output part copies.
+fn copied(channels: &[OutChannel]) -> Vec<&str> {
+    channels
+        .iter()
+        .filter_map(|(_, _, src)| match src {
+            Src::Input(n) => Some(n.as_str()),
+            Src::New(_) => None,
+        })
+        .collect()
 }
 
 /// The channels of `a` and those of `b` not in `a`.

@@ -151,6 +151,17 @@ impl FrameBuffers {
         }
     }
 
+    /// Keeps only rows `rows` of every plane (a band read with context rows, cut to its own).
+    pub fn keep_rows(&mut self, rows: std::ops::Range<usize>) {
+        let (w, rows) = (self.width, rows.start.min(self.height)..rows.end.min(self.height));
+        for p in &mut self.planes {
+            p.data.truncate(rows.end * w);
+            p.data.drain(..rows.start * w);
+        }
+        self.height = rows.len();
+        self.window.y += rows.start as i32;
+    }
+
     /// Removes channel `name`, returning it.
     pub fn remove(&mut self, name: &str) -> Option<Plane> {
         let i = self.planes.iter().position(|p| p.name == name)?;
