@@ -243,8 +243,8 @@ impl FileJob {
         // more on its way there), checked before the output exists.
         let channels = self.reader.channel_names().count();
         // A streamed frame's bands keep the channels they copy from their one decode until
-        // their result comes out, where that fits the budget (else they are decoded again
-        // when written: a third more decoding).
+        // their result comes out, where that fits the budget (else the encoder decodes them
+        // again: a third more decoding).
         let kept = bands.held_copies_bytes(denoiser, channels);
         let in_flight = (channels + 9) * if bands.len() > 1 { 2 } else { 1 };
         bands
@@ -306,10 +306,14 @@ impl FileJob {
         let mut done = 0;
         let mut totals: Vec<(&'static str, &'static str, features::Repairs)> = Vec::new();
         let mut report = FileReport::default();
-        // The encoder decodes the copied channels no band kept with handles of its own, so
-        // that this runs beside the network, not between its bands (opened before the
-        // output, as the producer's are).
-        let mut copier = if bands.len() > 1 || input_parts.len() > 1 {
+        // The encoder decodes the copied channels no band keeps (other parts', and a
+        // streamed frame's beyond the budget) with handles of its own, so that this runs
+        // beside the network, not between its bands (opened before the output, as the
+        // producer's are).
+        let kept_by_bands = bands.len() == 1 || kept.is_some();
+        let decodes =
+            parts.iter().enumerate().any(|(p, (_, ch))| !copied(ch).is_empty() && (p != beauty_out || !kept_by_bands));
+        let mut copier = if decodes {
             let mut r = FrameReader::open(&path)?;
             r.set_decoders(denoiser.threads())?;
             Some(r)
@@ -337,8 +341,7 @@ impl FileJob {
                         Written::Rows { rows, copies, denoised } => {
                             let channels = &parts[part].1;
                             let names = copied(channels);
-                            // Decoded here when no band kept them (the copier is opened for every
-                            // frame of several bands or parts; a one-band frame keeps them).
+                            // Decoded here when no band kept them (the copier is opened then).
                             let copies = match (copies, copier.as_mut()) {
                                 (Some(fb), _) => fb,
                                 (None, Some(copier)) if !names.is_empty() => {
@@ -391,7 +394,7 @@ impl FileJob {
                         // band without context rows (the whole frame, as a 1280×720 frame is at
                         // the default budget), or a streamed frame's where they fit the budget
                         // (`kept`). Otherwise it holds only the network's inputs, until they are
-                        // mapped, and the copied channels are read again when it is written.
+                        // mapped, and the encoder decodes the copied channels again.
                         let once = !copies.is_empty() && (context == *band || kept.is_some());
                         let names = if once { union(&needed, &copies) } else { needed.clone() };
                         let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
