@@ -119,22 +119,31 @@ impl Bands {
         if self.len() < 2 || !denoiser.streams(self.width) {
             return None;
         }
-        let band = self.iter().max_by_key(|b| self.with_context(b).len())?;
-        let rows = self.with_context(band).len();
+        let (_, working) = self.largest_band(denoiser)?;
         let held_rows = (crate::model::stream::held_rows(&denoiser.model.arch) + 2 * self.rows()).min(self.height);
         let held = channels * 4 * self.width * held_rows;
-        let working = KpcnInputs::bytes(self.width, rows) + denoiser.working_bytes(self.width, self.inner(band), rows);
         (working + held <= denoiser.options.max_memory_mb << 20).then_some(held)
+    }
+
+    /// The largest band's rows with context, and the bytes of its network inputs and
+    /// working memory.
+    fn largest_band(&self, denoiser: &Denoiser) -> Option<(usize, usize)> {
+        let band = self.iter().max_by_key(|b| self.with_context(b).len())?;
+        let rows = self.with_context(band).len();
+        let bytes = KpcnInputs::bytes(self.width, rows).saturating_add(denoiser.working_bytes(
+            self.width,
+            self.inner(band),
+            rows,
+        ));
+        Some((rows, bytes))
     }
 
     /// Checks, before any work, that the largest band can be had: its network inputs and
     /// working memory, `floats_per_pixel` more of the caller's own over its rows with
     /// context, and `fixed` bytes.
     pub fn reserve(&self, denoiser: &Denoiser, floats_per_pixel: usize, fixed: usize) -> Result<(), DenoiseError> {
-        let Some(band) = self.iter().max_by_key(|b| self.with_context(b).len()) else { return Ok(()) };
-        let rows = self.with_context(band).len();
-        let bytes = KpcnInputs::bytes(self.width, rows)
-            .saturating_add(denoiser.working_bytes(self.width, self.inner(band), rows))
+        let Some((rows, working)) = self.largest_band(denoiser) else { return Ok(()) };
+        let bytes = working
             .saturating_add(floats_per_pixel.saturating_mul(self.width).saturating_mul(rows).saturating_mul(4))
             .saturating_add(fixed);
         reserve_working_memory(bytes)
