@@ -252,6 +252,40 @@ fn bands_of_chosen_channels_read_like_the_whole_frame() {
 }
 
 #[test]
+fn a_band_after_carried_rows_reads_like_the_rows_read_at_once() {
+    // A streamed frame's band carries the previous read's last rows and decodes only the
+    // rest: the same rows, whatever the file's chunk height (zip 16, piz 32, none 1), the
+    // data window's origin and the number of decoders (each starting where the last
+    // read's last decoder stopped).
+    let dir = tempfile::tempdir().unwrap();
+    let mut fb = native_frame(11, 150, 9, &[]);
+    fb.window = Window { y: -7, full_y: -7, ..fb.window };
+    let names = ["R", "normal.G", "depthVariance.Z"];
+    for compression in ["zip", "piz", "none"] {
+        let o = WriteOptions { compression: Some(compression.into()), ..Default::default() };
+        let path = dir.path().join(format!("{compression}.exr"));
+        fb.write(&path, &o).unwrap();
+        let mut reader = FrameReader::open(&path).unwrap();
+        for decoders in 1..=3 {
+            reader.set_decoders(decoders).unwrap();
+            let (mut c0, mut band) = (0, reader.read_band(Some(&names), 0, 36).unwrap());
+            // Context rows of 2 each side of 32-row bands, as a streamed frame reads them.
+            for (next, end) in [(30, 68), (62, 100), (94, 132), (126, 150), (150, 150)] {
+                let carried = band.copy_rows(next - c0..band.height());
+                assert_eq!((carried.height(), carried.window.y), (band.height() - (next - c0), next as i32 - 7));
+                band = reader.read_band_after(carried, end).unwrap();
+                c0 = next;
+                let what = format!("{compression}, {decoders} decoders, rows {next}..{end}");
+                assert_eq!((band.height(), band.window.y), (end - next, next as i32 - 7), "{what}");
+                for n in names {
+                    assert_eq!(band.channel(n).unwrap(), &fb.channel(n).unwrap()[next * 11..end * 11], "{n}: {what}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn several_encoders_write_the_same_pixels() {
     // Compressing on OpenEXR's pool (the CLI's outputs) changes how, not what.
     let dir = tempfile::tempdir().unwrap();

@@ -381,7 +381,11 @@ impl FileJob {
                     // a band's result comes out once the rows below it that it needs went in.
                     let mut network = if p == beauty_out { FrameStream::new(denoiser, w, h) } else { None };
                     let mut held_bands: VecDeque<Option<FrameBuffers>> = VecDeque::new();
-                    for band in bands.iter() {
+                    // The rows a band's read shares with the next one's (its context rows),
+                    // kept so that they are decoded once.
+                    let mut shared: Option<FrameBuffers> = None;
+                    let all: Vec<&std::ops::Range<usize>> = bands.iter().collect();
+                    for (i, &band) in all.iter().enumerate() {
                         let (a, b) = (band.start, band.end);
                         if p != beauty_out {
                             sink.send(Written::Rows { rows: a..b, copies: None, denoised: None })?;
@@ -397,7 +401,14 @@ impl FileJob {
                         // mapped, and the encoder decodes the copied channels again.
                         let once = !copies.is_empty() && (context == *band || kept.is_some());
                         let names = if once { union(&needed, &copies) } else { needed.clone() };
-                        let mut fb = timed(&mut stages.read, || self.reader.read_band(Some(&names), c0, c1))?;
+                        let mut fb = timed(&mut stages.read, || match shared.take() {
+                            Some(rows) => self.reader.read_band_after(rows, c1),
+                            None => self.reader.read_band(Some(&names), c0, c1),
+                        })?;
+                        let next = all.get(i + 1).map(|b| bands.with_context(b).start);
+                        if let Some(next) = next.filter(|n| (c0..c1).contains(n) && c1 - n <= MAX_SHARED_ROWS) {
+                            shared = Some(fb.copy_rows(next - c0..c1 - c0));
+                        }
                         let started = std::time::Instant::now();
                         let inputs = self.mapping.extract(&fb)?;
                         let held = if once {
@@ -489,6 +500,11 @@ impl FileJob {
         Ok(meter.finish())
     }
 }
+
+/// The most context rows a band's read shares with the next that are kept for it rather
+/// than decoded again (a streamed network's are 4; a tiled network's can be hundreds,
+/// which the budget does not count twice).
+const MAX_SHARED_ROWS: usize = 16;
 
 /// What the encoder thread of [`FileJob::run`] writes, in order.
 enum Written {

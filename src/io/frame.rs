@@ -162,6 +162,24 @@ impl FrameBuffers {
         self.window.y += rows.start as i32;
     }
 
+    /// A copy of rows `rows` of every plane (clamped to the frame), as a frame of their own.
+    pub fn copy_rows(&self, rows: std::ops::Range<usize>) -> FrameBuffers {
+        let (w, rows) = (self.width, rows.start.min(self.height)..rows.end.min(self.height));
+        let mut frame = FrameBuffers { height: rows.len(), ..self.clone_header() };
+        frame.window.y += rows.start as i32;
+        frame.parts = self.parts;
+        frame.planes = self
+            .planes
+            .iter()
+            .map(|p| Plane {
+                name: p.name.clone(),
+                format: p.format,
+                data: p.data[rows.start * w..rows.end * w].to_vec(),
+            })
+            .collect();
+        frame
+    }
+
     /// Removes channel `name`, returning it.
     pub fn remove(&mut self, name: &str) -> Option<Plane> {
         let i = self.planes.iter().position(|p| p.name == name)?;
@@ -266,6 +284,13 @@ pub struct FrameReader {
     subimages: Vec<SubimageInfo>,
     /// Per subimage: its name.
     part_names: Vec<String>,
+    /// Rows of a compressed chunk of a scanline file (its compression's), which decoders'
+    /// shares are cut on.
+    chunk_rows: usize,
+    /// The handle that decoded the last rows of the previous read (index into the input
+    /// and [`FrameReader::more`]): it starts the next one, whose first rows a streamed
+    /// band shares with them, so the chunk it holds decoded is not decoded again.
+    last_decoder: usize,
 }
 
 /// The largest frame kpcn reads: 16384×16384 pixels (a 16K square; renders are smaller).
@@ -343,7 +368,17 @@ impl FrameReader {
             subimages.push(info);
             part_names.push(part);
         }
-        Ok(FrameReader { input, more: Vec::new(), header, channels, subimages, part_names })
+        let chunk_rows = chunk_rows(header.attribute("compression"));
+        Ok(FrameReader {
+            input,
+            more: Vec::new(),
+            header,
+            channels,
+            subimages,
+            part_names,
+            chunk_rows,
+            last_decoder: 0,
+        })
     }
 
     /// Decodes each read on `n` threads, each with its own handle on the file (opened
@@ -355,6 +390,7 @@ impl FrameReader {
     pub fn set_decoders(&mut self, n: usize) -> Result<(), IoError> {
         let path = self.header.display_path();
         self.more.truncate(n.saturating_sub(1));
+        self.last_decoder = 0;
         while self.more.len() + 1 < n {
             let handle = Input::open(&path).map_err(|reason| {
                 IoError::from_oiio(&path, reason, |reason| IoError::Open { path: path.clone(), reason })
@@ -414,9 +450,32 @@ impl FrameReader {
     /// Rows `[y0, y1)` (relative to the data window) of the named channels (all when
     /// `None`) as a frame of height `y1 − y0` whose data window starts at row `y0`.
     pub fn read_band(&mut self, names: Option<&[&str]>, y0: usize, y1: usize) -> Result<FrameBuffers, IoError> {
+        self.read(names, y0, y1, None)
+    }
+
+    /// The rows of `carried` (a frame this reader read, such as the previous band's last
+    /// rows) followed by the same channels' rows from its end to `y1`: a band that shares
+    /// context rows with the one before decodes only the rows it does not share.
+    pub fn read_band_after(&mut self, carried: FrameBuffers, y1: usize) -> Result<FrameBuffers, IoError> {
+        let names: Vec<String> = carried.planes.iter().map(|p| p.name.clone()).collect();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let start = (carried.window.y - self.header.window.y).max(0) as usize;
+        self.read(Some(&names), start + carried.height, y1.max(start + carried.height), Some(carried))
+    }
+
+    /// Rows `[y0, y1)` of the named channels, after the rows of `carried` when given (which
+    /// then holds exactly those channels and ends at `y0`).
+    fn read(
+        &mut self,
+        names: Option<&[&str]>,
+        y0: usize,
+        y1: usize,
+        carried: Option<FrameBuffers>,
+    ) -> Result<FrameBuffers, IoError> {
         let path = self.header.display_path();
         let y1 = y1.min(self.header.height);
         let y0 = y0.min(y1);
+        let base = carried.as_ref().map_or(y0, |c| y0 - c.height.min(y0));
         let wanted: Vec<usize> = match names {
             None => (0..self.channels.len()).collect(),
             Some(names) => names
@@ -429,8 +488,8 @@ impl FrameReader {
                 })
                 .collect::<Result<_, _>>()?,
         };
-        let mut frame = FrameBuffers { height: y1 - y0, ..self.header.clone_header() };
-        frame.window.y += y0 as i32;
+        let mut frame = FrameBuffers { height: y1 - base, ..self.header.clone_header() };
+        frame.window.y += base as i32;
         frame.parts = self.header.parts;
         let mut data: Vec<Option<Vec<f32>>> = vec![None; wanted.len()];
         for (s, info) in self.subimages.iter().enumerate() {
@@ -449,11 +508,17 @@ impl FrameReader {
             let read_err = |reason| {
                 IoError::from_oiio(&path, reason, |reason| IoError::Read { path: path.clone(), subimage: s, reason })
             };
-            // A handle per decoder, for reads long enough to share (a chunk each at least).
-            let decoders = (self.more.len() + 1).min((y1 - y0).div_ceil(DECODER_ROWS)).max(1);
+            // A handle per decoder, for reads long enough to share (a chunk each at least),
+            // starting with the one that decoded the previous read's last rows.
+            let chunk = if info.tile_height > 0 { info.tile_height } else { self.chunk_rows };
+            let chunks = (y1 - y0 + y0 % chunk).div_ceil(chunk);
+            let count = self.more.len() + 1;
+            let (decoders, start) = (count.min(chunks).max(1), self.last_decoder % count);
+            self.last_decoder = (start + decoders - 1) % count;
             let mut handles: Vec<&mut Input> = std::iter::once(&mut self.input).chain(&mut self.more).collect();
+            handles.rotate_left(start);
             handles.truncate(decoders);
-            let mut planes = read_planes(&mut handles, s, info, y0, y1, &unique).map_err(read_err)?;
+            let mut planes = read_planes(&mut handles, s, info, chunk, base..y0, y1, &unique).map_err(read_err)?;
             for (p, &(index, k)) in indices.iter().enumerate() {
                 // A channel asked for twice is copied; otherwise moved.
                 let again = indices.get(p + 1).is_some_and(|n| n.0 == index);
@@ -463,7 +528,11 @@ impl FrameReader {
         }
         for (c, d) in wanted.iter().zip(data) {
             let ch = &self.channels[*c];
-            frame.planes.push(Plane { name: ch.name.clone(), format: ch.format, data: d.unwrap_or_default() });
+            let mut data = d.unwrap_or_default();
+            if let Some(rows) = carried.as_ref().and_then(|f| f.channel(&ch.name)) {
+                data[..rows.len()].copy_from_slice(rows);
+            }
+            frame.planes.push(Plane { name: ch.name.clone(), format: ch.format, data });
         }
         Ok(frame)
     }
@@ -486,39 +555,53 @@ fn file_kind(m: &std::fs::Metadata) -> &'static str {
     }
 }
 
-/// Rows each decoder of a read gets at least, a multiple of every compression's chunk
-/// (zip's 16 rows, piz's and dwaa's 32), so that no chunk is decoded twice but dwab's.
-const DECODER_ROWS: usize = 64;
+/// Rows of one compressed chunk of a scanline EXR with this compression (OpenEXR's
+/// table); 64, a multiple of all but dwab's, when the header does not say.
+fn chunk_rows(compression: Option<&str>) -> usize {
+    let name = compression.unwrap_or("").split(':').next().unwrap_or("");
+    match name {
+        "none" | "rle" | "zips" => 1,
+        "zip" | "pxr24" => 16,
+        "piz" | "b44" | "b44a" | "dwaa" => 32,
+        "dwab" => 256,
+        _ => 64,
+    }
+}
 
-/// Decodes rows `[y0, y1)` of channels `channels` (sorted, distinct) of subimage `s` into
-/// one plane each, the rows split between `handles` (each on its own thread but the
-/// first, on the caller's). Allocated fallibly: a frame-sized plane that cannot be had is
+/// Decodes rows `[carried.end, y1)` of channels `channels` (sorted, distinct) of subimage
+/// `s` into planes of rows `[carried.start, y1)`, one per channel (the `carried` rows left
+/// for the caller to fill), the rows split between `handles` (each on its own thread but
+/// the first, on the caller's) in shares of whole `chunk`s of rows, so that no chunk is
+/// decoded by two of them. Allocated fallibly: a frame-sized plane that cannot be had is
 /// an error, not an abort.
 fn read_planes(
     handles: &mut [&mut Input],
     s: usize,
     info: &SubimageInfo,
-    y0: usize,
+    chunk: usize,
+    carried: std::ops::Range<usize>,
     y1: usize,
     channels: &[usize],
 ) -> Result<Vec<Vec<f32>>, String> {
-    let w = info.width;
+    let (w, y0) = (info.width, carried.end);
     let mut planes = Vec::new();
     for _ in channels {
         let mut plane: Vec<f32> = Vec::new();
-        plane.try_reserve_exact(w * (y1 - y0)).map_err(|_| super::oiio::OUT_OF_MEMORY.to_string())?;
-        plane.resize(w * (y1 - y0), 0.0);
+        plane.try_reserve_exact(w * (y1 - carried.start)).map_err(|_| super::oiio::OUT_OF_MEMORY.to_string())?;
+        plane.resize(w * (y1 - carried.start), 0.0);
         planes.push(plane);
     }
-    // Rows of each decoder: equal shares, cut on chunk boundaries of the file.
+    // Rows of each decoder: as many whole chunks each as can be, cut on the file's chunk
+    // boundaries.
     let n = handles.len();
-    let share = (y1 - y0).div_ceil(n).next_multiple_of(DECODER_ROWS);
-    let mut cuts: Vec<usize> = (0..n).map(|i| (y0 / DECODER_ROWS * DECODER_ROWS + i * share).clamp(y0, y1)).collect();
+    let first = y0 / chunk;
+    let chunks = y1.div_ceil(chunk) - first;
+    let mut cuts: Vec<usize> = (0..n).map(|i| ((first + i * chunks / n) * chunk).clamp(y0, y1)).collect();
     cuts.push(y1);
     // Each decoder's rows of every plane.
     let mut parts: Vec<Vec<&mut [f32]>> = (0..n).map(|_| Vec::new()).collect();
     for plane in &mut planes {
-        let mut rest = plane.as_mut_slice();
+        let mut rest = &mut plane[carried.len() * w..];
         for (i, part) in parts.iter_mut().enumerate() {
             let (mine, after) = rest.split_at_mut((cuts[i + 1] - cuts[i]) * w);
             part.push(mine);
