@@ -54,6 +54,7 @@ fn options(steps: u64) -> TrainOptions {
         // The schedule is a function of the step: resuming must follow it exactly.
         cosine: true,
         loss: Default::default(),
+        block_weight: 1.0,
         augment: false,
         fireflies: None,
         permute_channels: false,

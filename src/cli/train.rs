@@ -86,6 +86,13 @@ pub struct TrainArgs {
     /// in them pulls it dark). Give it again with --resume.
     #[arg(long, value_enum, default_value_t = Loss::L1)]
     pub loss: Loss,
+    /// With `--loss relmse-light`: the weight of its block term (the relative L2 of 8×8
+    /// block means), against the per-pixel relMSE's 1. At 64 a block's error counts as
+    /// much as each of its pixels' would; larger holds each block's light more firmly,
+    /// where the per-pixel term alone erodes thin bright structures. Give it again with
+    /// --resume.
+    #[arg(long, default_value_t = 1.0, value_name = "W")]
+    pub block_weight: f64,
     /// Show each patch mirrored and/or transposed at random (8 orientations), so the
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
@@ -218,6 +225,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         ops: if args.stock_candle { Ops::StockCandle } else { Ops::Kpcn },
         cosine: args.schedule == Schedule::Cosine,
         loss: args.loss,
+        block_weight: args.block_weight,
         augment: args.augment,
         fireflies: args.fireflies.then(|| {
             let d = Fireflies::default();

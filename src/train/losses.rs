@@ -87,13 +87,19 @@ pub fn relmse_blocks(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
 /// (the block term of [`relmse_blocks`] caps that cost at 1), and the block means seek the
 /// mean of the plausible references rather than a darker value. Takes `(N, C, H, W)` tensors.
 pub fn relmse_light(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
+    relmse_light_weighted(x, y, 1.0)
+}
+
+/// [`relmse_light`] with its block term weighted `weight` (`kpcn train --block-weight`):
+/// at 64 (8 × 8) a block's error counts as much as each of its pixels' errors would.
+pub fn relmse_light_weighted(x: &Tensor, y: &Tensor, weight: f64) -> Result<Tensor, ModelError> {
     let pixels = relmse(x, y)?;
     let (_, _, h, w) = y.dims4()?;
     if h < BLOCK || w < BLOCK {
         return Ok(pixels);
     }
     let (bx, by) = (x.avg_pool2d(BLOCK)?, y.avg_pool2d(BLOCK)?);
-    Ok((pixels + relative_l2(&bx, &by)?)?)
+    Ok((pixels + (relative_l2(&bx, &by)? * weight)?)?)
 }
 
 /// `pixels` plus the relMSE of the `BLOCK`×`BLOCK` means of `x` against `y`'s (when the
@@ -170,23 +176,40 @@ impl Loss {
         }
     }
 
+    /// The relative term of `x` against `y`, for the losses that have one; `block_weight`
+    /// weights `relmse-light`'s block term.
+    fn relative_term(self, x: &Tensor, y: &Tensor, block_weight: f64) -> Result<Option<Tensor>, ModelError> {
+        match (self, self.relative()) {
+            (Loss::RelmseLight, _) => relmse_light_weighted(x, y, block_weight).map(Some),
+            (_, Some(relative)) => relative(x, y).map(Some),
+            (_, None) => Ok(None),
+        }
+    }
+
     /// The loss of a prediction of linear radiance (the irradiance, the colour).
-    pub fn radiance(self, x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
-        match self.relative() {
+    pub fn radiance(self, x: &Tensor, y: &Tensor, block_weight: f64) -> Result<Tensor, ModelError> {
+        match self.relative_term(x, y, block_weight)? {
             None => l1(x, y),
-            Some(relative) => Ok((relative(x, y)? + tonemapped_l1(x, y)?)?),
+            Some(relative) => Ok((relative + tonemapped_l1(x, y)?)?),
         }
     }
 
     /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
-    pub fn specular(self, domain: Specular, s_hat: &Tensor, target_log: &Tensor) -> Result<Tensor, ModelError> {
+    pub fn specular(
+        self,
+        domain: Specular,
+        s_hat: &Tensor,
+        target_log: &Tensor,
+        block_weight: f64,
+    ) -> Result<Tensor, ModelError> {
         let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
-        match self.relative() {
+        if self.relative().is_none() {
+            return Ok(log);
+        }
+        let target = (target_log.exp()? - 1.0)?;
+        match self.relative_term(&domain.radiance_tensor(s_hat)?, &target, block_weight)? {
+            Some(relative) => Ok((relative + log)?),
             None => Ok(log),
-            Some(relative) => {
-                let target = (target_log.exp()? - 1.0)?;
-                Ok((relative(&domain.radiance_tensor(s_hat)?, &target)? + log)?)
-            }
         }
     }
 }
@@ -246,7 +269,7 @@ mod tests {
         // 0.008 on 16-sample ones); with the targets' 5×5 mean (relmse_local), +0.2 % and
         // −8 %. The tonemapped L1 term pulls toward the targets' median: the whole loss
         // lands +0.2 % off on 512-sample targets, +2.8 % on 16.
-        let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y);
+        let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y, 1.0);
         for (n, full_bias, local_bias) in [(512, 0.01, 0.01), (16, 0.05, 0.15)] {
             let ys = noisy_targets(n, 0.05, 4000);
             let mean = ys.iter().map(|&v| v as f64).sum::<f64>() / ys.len() as f64;
@@ -361,6 +384,21 @@ mod tests {
         assert!(cost(relmse_blocks, &dropped) < cost(relmse_blocks, &kept), "relmse-blocks prefers dropping");
         let (drop, keep) = (cost(relmse_light, &dropped), cost(relmse_light, &kept));
         assert!(drop > 10.0 * keep, "relmse-light: dropped {drop}, kept {keep}");
+    }
+
+    #[test]
+    fn the_block_weight_scales_only_relmse_light_block_term() {
+        // A bright 8×8 block dropped: the block term is what relmse-light adds to relmse,
+        // and --block-weight multiplies exactly that; other losses ignore it.
+        let p: Vec<f32> = (0..256).map(|i| if i % 16 < 8 && i / 16 < 8 { 3.0 } else { 0.05 }).collect();
+        let y = Tensor::new(p, &Device::Cpu).unwrap().reshape((1, 1, 16, 16)).unwrap();
+        let x = Tensor::full(0.05f32, (1, 1, 16, 16), &Device::Cpu).unwrap();
+        let cost = |loss: Loss, w: f64| scalar(&loss.radiance(&x, &y, w).unwrap()).unwrap();
+        let block = scalar(&relmse_light(&x, &y).unwrap()).unwrap() - scalar(&relmse(&x, &y).unwrap()).unwrap();
+        assert!(block > 0.1, "the dropped block costs {block}");
+        let added = cost(Loss::RelmseLight, 64.0) - cost(Loss::RelmseLight, 1.0);
+        assert!((added / (63.0 * block) - 1.0).abs() < 1e-4, "added {added}, block term {block}");
+        assert_eq!(cost(Loss::RelmseBlocks, 64.0), cost(Loss::RelmseBlocks, 1.0));
     }
 
     #[test]

@@ -152,6 +152,8 @@ pub struct TrainOptions {
     pub cosine: bool,
     /// The loss.
     pub loss: Loss,
+    /// The weight of `relmse-light`'s block term (1 by default).
+    pub block_weight: f64,
     /// Each patch in one of the square's eight orientations, drawn at random.
     pub augment: bool,
     /// Fireflies added to each patch's noisy input (never to its reference), if any.
@@ -390,13 +392,13 @@ impl<'a> Trainer<'a> {
         if self.step <= self.opts.phase1_steps {
             if self.opts.only != Some(Branch::Specular) {
                 let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
-                let ld = self.opts.loss.radiance(&d_hat, &bd.target)?;
+                let ld = self.opts.loss.radiance(&d_hat, &bd.target, self.opts.block_weight)?;
                 self.adam_d.step(&self.model.vars(true, false), &ld)?;
                 row.loss_diffuse = scalar(&ld)? as f64;
             }
             if self.opts.only != Some(Branch::Diffuse) {
                 let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
-                let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target)?;
+                let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target, self.opts.block_weight)?;
                 self.adam_s.step(&self.model.vars(false, true), &ls)?;
                 row.loss_specular = scalar(&ls)? as f64;
             }
@@ -405,7 +407,7 @@ impl<'a> Trainer<'a> {
             let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
             let s = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
-            let lc = self.opts.loss.radiance(&c, &bd.reference)?;
+            let lc = self.opts.loss.radiance(&c, &bd.reference, self.opts.block_weight)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }
@@ -477,6 +479,7 @@ mod tests {
             ops: Default::default(),
             cosine: true,
             loss: Loss::L1,
+            block_weight: 1.0,
             augment: false,
             fireflies: None,
             permute_channels: false,
