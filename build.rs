@@ -33,6 +33,11 @@ fn main() {
         .to_string();
     println!("cargo::rustc-cdylib-link-arg=-Wl,-soname,libkpcn.so.{abi}");
     println!("cargo::rustc-env=KPCN_ABI={abi}");
+    // The command serves zlib's one-shot calls with libdeflate (src/cli/zlib.rs): its
+    // definitions must be in the dynamic symbol table for the libraries' calls to bind there.
+    println!(
+        "cargo::rustc-link-arg-bin=kpcn=-Wl,--export-dynamic-symbol=compress,--export-dynamic-symbol=compress2,--export-dynamic-symbol=uncompress"
+    );
 
     // Probe without emitting link flags yet: the shim's static library must come
     // before OpenImageIO on the link line.

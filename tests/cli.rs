@@ -38,6 +38,35 @@ fn info_fails_on_missing_channels_naming_them_and_the_fix() {
 }
 
 #[test]
+fn openexrs_zip_chunks_go_through_the_commands_libdeflate() {
+    // The dynamic linker's own report of where OpenEXR's zlib calls land: the command's
+    // exported definitions (src/cli/zlib.rs), not libz's.
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(16, 8, 4, &[]), dir.path(), "in.exr");
+    let output = dir.path().join("out.exr");
+    let out = Command::new(env!("CARGO_BIN_EXE_kpcn"))
+        .args(["denoise", input.to_str().unwrap(), "-o", output.to_str().unwrap(), "-q"])
+        .env("LD_DEBUG", "bindings")
+        .output()
+        .expect("kpcn runs");
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let exe = std::fs::canonicalize(env!("CARGO_BIN_EXE_kpcn")).unwrap();
+    for symbol in ["compress2", "uncompress"] {
+        let bound = stderr
+            .lines()
+            .filter(|l| l.contains("libOpenEXR-") && l.contains(&format!("`{symbol}'")))
+            .collect::<Vec<_>>();
+        assert!(!bound.is_empty(), "OpenEXR never binds {symbol}");
+        for line in bound {
+            let to = line.split(" to ").nth(1).and_then(|t| t.split(" [").next()).unwrap_or("");
+            let to = std::fs::canonicalize(to).unwrap_or_default();
+            assert_eq!(to, exe, "{line}");
+        }
+    }
+}
+
+#[test]
 fn info_fails_on_unreadable_files_but_reports_the_rest() {
     let dir = tempfile::tempdir().unwrap();
     let good = write(&native_frame(8, 8, 3, &[]), dir.path(), "good.exr");

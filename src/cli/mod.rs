@@ -12,6 +12,7 @@ mod signals;
 mod speed;
 mod study;
 mod train;
+mod zlib;
 
 use clap::{Parser, Subcommand};
 
