@@ -52,6 +52,36 @@ fn f16_channels_round_trip_bit_exact_for_every_half_value() {
 }
 
 #[test]
+fn float_channels_read_natively_beside_half_ones_keep_their_bits() {
+    // Float channels between half ones: a read of just those is OpenImageIO's native path
+    // (no conversion buffer), of all of them its converting one; both give the same bits.
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (19, 40);
+    let mut rng = Rng(11);
+    let mut fb = FrameBuffers::new(w, h);
+    let mut values = Vec::new();
+    for (name, format) in
+        [("a", SampleFormat::Half), ("b", SampleFormat::Float), ("c", SampleFormat::Float), ("d", SampleFormat::Half)]
+    {
+        let v: Vec<f32> = (0..w * h).map(|_| (rng.next_u64() % 60_000) as f32 / 7.0 - 4000.0).collect();
+        let v: Vec<f32> =
+            if format == SampleFormat::Half { v.iter().map(|&x| half::f16::from_f32(x).to_f32()).collect() } else { v };
+        fb.insert(name, format, v.clone()).unwrap();
+        values.push((name, v));
+    }
+    let path = write(&fb, dir.path(), "mixed.exr");
+    let mut reader = FrameReader::open(&path).unwrap();
+    let floats = reader.read_band(Some(&["b", "c"]), 5, 33).unwrap();
+    let all = reader.read_band(None, 0, h).unwrap();
+    for (name, v) in &values {
+        assert_eq!(bits(all.channel(name).unwrap()), bits(v), "{name}");
+        if ["b", "c"].contains(name) {
+            assert_eq!(bits(floats.channel(name).unwrap()), bits(&v[5 * w..33 * w]), "{name}");
+        }
+    }
+}
+
+#[test]
 fn metadata_survives_a_round_trip() {
     let dir = tempfile::tempdir().unwrap();
     let mut fb = native_frame(8, 4, 1, &[]);

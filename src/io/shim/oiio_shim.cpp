@@ -193,11 +193,16 @@ int kpcn_input_read_rows(kpcn_input* in, int s, int ybegin, int yend, int chbegi
             return fail("deep images are not supported");
         // UINT channels (object ids) keep their bits: read natively and bit-cast into the
         // float buffer, where converting would normalise them to [0, 1].
-        bool uint = false;
-        for (int c = chbegin; c < chend; ++c)
+        // Float channels are asked for natively: OpenImageIO otherwise reads a file whose
+        // channels differ in format through a fresh conversion buffer of up to 64 MB per
+        // call, over half a 4K file command's page faults.
+        bool uint = false, all_float = true;
+        for (int c = chbegin; c < chend; ++c) {
             uint |= sp.channelformat(c) == TypeDesc::UINT;
+            all_float &= sp.channelformat(c) == TypeDesc::FLOAT;
+        }
         std::vector<unsigned char> native;
-        TypeDesc format = TypeDesc::FLOAT;
+        TypeDesc format = all_float ? TypeDesc::UNKNOWN : TypeDesc::FLOAT;
         void* target = data;
         size_t pixel_bytes = 0;
         if (uint) {
