@@ -612,6 +612,33 @@ fn a_cancelled_file_denoise_leaves_no_output() {
     assert_eq!(crate::util::stray_files(dir.path(), &["in.exr"]), Vec::<String>::new());
 }
 
+/// A frame of several bands whose last chunks are missing fails before its first band (in
+/// the whole-frame statistics pass, which decodes the next rows while it measures these),
+/// naming the file, and leaves no output.
+#[test]
+fn a_frame_of_several_bands_cut_short_fails_before_its_first_band() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = write(&native_frame(40, 64, 3, &[]), dir.path(), "whole.exr");
+    let bytes = std::fs::read(&whole).unwrap();
+    let cut = dir.path().join("cut.exr");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 4]).unwrap();
+    let out = dir.path().join("out.exr");
+    // A tiled network: every band's tiles come out before the next band is read.
+    let d = Denoiser::new(tiny(Kind::Kpcn, 5), Options { tile_size: Some(8), ..Options::default() }).unwrap();
+    let opts = FileOptions { band_rows: Some(8), ..FileOptions::default() };
+    // No tile is denoised, though the first bands' rows are whole.
+    let tiles = std::cell::Cell::new(0);
+    let err = FileJob::open(&cut, None).unwrap().run(&d, &out, &opts, &|_| {
+        tiles.set(tiles.get() + 1);
+        true
+    });
+    let err = err.unwrap_err().to_string();
+    assert!(err.contains(cut.to_str().unwrap()) && err.contains("truncated or corrupt"), "{err}");
+    assert_eq!(tiles.get(), 0, "{err}");
+    assert!(!out.exists());
+    assert_eq!(crate::util::stray_files(dir.path(), &["whole.exr", "cut.exr"]), Vec::<String>::new());
+}
+
 /// A small `--max-memory` never cuts a wide network's frame into tiles that are mostly
 /// context (the budget is raised to a region of twice its reach instead): every tile but
 /// the last of a row or column is at least the reach on each side, for a band's tiles too.

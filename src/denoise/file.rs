@@ -488,16 +488,31 @@ impl FileJob {
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let (w, h) = self.size();
         let mut meter = features::FrameStatsMeter::new(w, exposure);
-        for a in (0..h).step_by(band) {
-            let fb: FrameBuffers = self.reader.read_band(Some(&names), a, a + band)?;
-            if meter.wants_colour() {
-                let inputs = self.mapping.extract(&fb)?;
-                meter.add(&inputs.depth, Some(inputs.color.each_ref().map(Vec::as_slice)));
-            } else if let Some(depth) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) {
-                meter.add(&depth, None);
+        // The next band decodes while this one is measured (at most one more waits).
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        let (reader, mapping, names) = (&mut self.reader, &self.mapping, &names);
+        std::thread::scope(|scope| {
+            scope.spawn(move || {
+                for a in (0..h).step_by(band) {
+                    let fb = reader.read_band(Some(names), a, a + band);
+                    let failed = fb.is_err();
+                    // A closed queue: the measuring side stopped on an error of its own.
+                    if tx.send(fb).is_err() || failed {
+                        break;
+                    }
+                }
+            });
+            for fb in rx {
+                let fb = fb?;
+                if meter.wants_colour() {
+                    let inputs = mapping.extract(&fb)?;
+                    meter.add(&inputs.depth, Some(inputs.color.each_ref().map(Vec::as_slice)));
+                } else if let Some(depth) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) {
+                    meter.add(&depth, None);
+                }
             }
-        }
-        Ok(meter.finish())
+            Ok(meter.finish())
+        })
     }
 }
 
