@@ -481,16 +481,23 @@ impl FileJob {
     }
 
     /// The largest finite depth of the whole frame and, when `exposure`, its exposure (of
-    /// the colour exactly as the network's inputs hold it), reading only the channels needed.
+    /// the colour exactly as the network's inputs hold it), reading only the depth's and the
+    /// colour's channels.
     fn frame_stats(&mut self, band: usize, exposure: bool) -> Result<FrameStats, FileError> {
+        let path = self.reader.header().display_path();
+        self.mapping.check(&path)?;
         let depth = self.mapping.entry_for(Quantity::Depth).clone();
-        let names = if exposure { self.mapping.channels() } else { depth.mean_channels() };
+        let colour = self.mapping.entry_for(Quantity::Color).clone();
+        let mut names = depth.mean_channels();
+        if exposure {
+            names.extend(colour.mean_channels().into_iter().filter(|c| !names.contains(c)).collect::<Vec<_>>());
+        }
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let (w, h) = self.size();
         let mut meter = features::FrameStatsMeter::new(w, exposure);
         // The next band decodes while this one is measured (at most one more waits).
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        let (reader, mapping, names) = (&mut self.reader, &self.mapping, &names);
+        let (reader, names) = (&mut self.reader, &names);
         std::thread::scope(|scope| {
             scope.spawn(move || {
                 for a in (0..h).step_by(band) {
@@ -504,12 +511,10 @@ impl FileJob {
             });
             for fb in rx {
                 let fb = fb?;
-                if meter.wants_colour() {
-                    let inputs = mapping.extract(&fb)?;
-                    meter.add(&inputs.depth, Some(inputs.color.each_ref().map(Vec::as_slice)));
-                } else if let Some(depth) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) {
-                    meter.add(&depth, None);
-                }
+                // The inputs' own formulas (`Mapping::extract`), on only these channels.
+                let Some(d) = depth.eval_mean(&fb).and_then(|mut v| v.pop()) else { continue };
+                let c = if meter.wants_colour() { colour.eval_mean(&fb) } else { None };
+                meter.add(&d, c.as_ref().map(|c| [0, 1, 2].map(|i| c[i].as_slice())));
             }
             Ok(meter.finish())
         })
