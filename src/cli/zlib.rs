@@ -4,8 +4,9 @@
 //! OpenEXR 3.1 (Debian 12's) deflates and inflates every ZIP and ZIPS chunk through these
 //! three calls, and they were a third of a file command's CPU. libdeflate does the same
 //! whole-buffer work about 2.2× faster when compressing at the same level (for a file as
-//! large) and 4× faster when decompressing (`BENCHMARKS.md`, "Where a file command's CPU
-//! goes"). Its output is a standard zlib stream, so every reader opens what we write.
+//! large) and 4× faster when decompressing (`BENCHMARKS.md`, "Whole command: file to file,
+//! sequences, C hosts"). Its output is a standard zlib stream, so every reader opens what we
+//! write.
 //!
 //! The executable exports these symbols (`build.rs`), and the dynamic linker binds the
 //! libraries' calls to the executable's definitions before libz's. Whatever libdeflate
