@@ -345,7 +345,7 @@ impl Denoiser {
         // features and the largest tile, and a quarter of that tile at most.
         let tile = tiles.iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
         let left = (self.options.max_memory_mb << 20).saturating_sub(Features::bytes(w, f.height) + tile);
-        let _reuse = kernel::buffers::Lease::new(left);
+        let _reuse = kernel::buffers::Lease::new(left.min(tile / 4));
         let mut d_hat = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
         let mut s_hat = d_hat.clone();
         for (i, t) in tiles.iter().enumerate() {
