@@ -192,10 +192,10 @@ int kpcn_input_read_rows(kpcn_input* in, int s, int ybegin, int yend, int chbegi
         if (sp.deep)
             return fail("deep images are not supported");
         // UINT channels (object ids) keep their bits: read natively and bit-cast into the
-        // float buffer, where converting would normalise them to [0, 1].
-        // Float channels are asked for natively: OpenImageIO otherwise reads a file whose
-        // channels differ in format through a fresh conversion buffer of up to 64 MB per
-        // call, over half a 4K file command's page faults.
+        // float buffer, where converting would normalise them to [0, 1]. Float channels are
+        // asked for natively too: OpenImageIO lists per-channel formats for every EXR, even
+        // all-float ones, and then reads "float as float" through a fresh conversion buffer
+        // of up to 64 MB per call (over half a 4K file command's page faults).
         bool uint = false, all_float = true;
         for (int c = chbegin; c < chend; ++c) {
             uint |= sp.channelformat(c) == TypeDesc::UINT;
