@@ -567,10 +567,11 @@ fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
 fn a_streamed_frame_whose_copies_do_not_fit_reads_them_again_and_gives_the_same_bits() {
     // A wide frame, and the budgets from which the tiny network's streams fit and from
     // which its bands' copied channels, kept until their result comes out, fit beside
-    // them. Between the two the encoder decodes them again. Both give the whole frame's
-    // result and copy every channel unchanged.
+    // them. Between the two the encoder decodes them again, in pieces of what it writes
+    // at a time (80 rows of these 12 channels): bands of 96 rows are cut in two. Every
+    // way gives the whole frame's result and copies every channel unchanged.
     let dir = tempfile::tempdir().unwrap();
-    let (w, h) = (3000, 24);
+    let (w, h) = (3000, 120);
     let fb = native_frame(w, h, 9, &[]);
     let input = write(&fb, dir.path(), "in.exr");
     let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
@@ -579,22 +580,23 @@ fn a_streamed_frame_whose_copies_do_not_fit_reads_them_again_and_gives_the_same_
     let channels = fb.planes().len();
     let denoiser =
         |mb| Denoiser::new(model.clone(), Options { threads: Some(2), max_memory_mb: mb, tile_size: None }).unwrap();
-    let kept = |d: &Denoiser| kpcn::denoise::Bands::new(d, w, h, Some(8)).held_copies_bytes(d, channels).is_some();
+    let kept =
+        |d: &Denoiser, band| kpcn::denoise::Bands::new(d, w, h, Some(band)).held_copies_bytes(d, channels).is_some();
     let streams_from = (1..1024).find(|&mb| denoiser(mb).streams(w)).expect("the streams fit somewhere");
-    let kept_from = (1..1024).find(|&mb| kept(&denoiser(mb))).expect("the copies fit somewhere");
+    let kept_from = (1..1024).find(|&mb| kept(&denoiser(mb), 8)).expect("the copies fit somewhere");
     assert!(streams_from < kept_from, "streams from {streams_from} MB, copies kept from {kept_from} MB");
-    for mb in [streams_from, kept_from] {
+    for (mb, band) in [(streams_from, 8), (streams_from, 96), (kept_from, 8)] {
         let d = denoiser(mb);
-        assert_eq!(kept(&d), mb == kept_from);
-        let opts = FileOptions { band_rows: Some(8), ..FileOptions::default() };
-        let out_path = dir.path().join(format!("out-{mb}.exr"));
+        assert_eq!(kept(&d, band), mb == kept_from);
+        let opts = FileOptions { band_rows: Some(band), ..FileOptions::default() };
+        let out_path = dir.path().join(format!("out-{mb}-{band}.exr"));
         FileJob::open(&input, None).unwrap().run(&d, &out_path, &opts, &|_| true).unwrap();
         let out = FrameBuffers::read(&out_path).unwrap();
         for (c, plane) in ["R", "G", "B"].iter().zip(&whole.color) {
             assert_eq!(out.channel(&format!("denoised.{c}")).unwrap(), plane.as_slice(), "{mb} MB denoised.{c}");
         }
         for p in fb.planes() {
-            assert!(out.channel(&p.name) == Some(p.data.as_slice()), "{mb} MB: {} differs", p.name);
+            assert!(out.channel(&p.name) == Some(p.data.as_slice()), "{mb} MB, bands of {band}: {} differs", p.name);
         }
     }
 }

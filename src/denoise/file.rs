@@ -321,6 +321,11 @@ impl FileJob {
             None
         };
         let mut writer = FrameWriter::create(output, &header, &spec, &opts.write)?;
+        // The encoder decodes in pieces of what it writes at a time (below): handles beyond
+        // the chunks of a piece would hold a chunk's buffers (30 MB at 4K) for nothing.
+        if let Some(c) = copier.as_mut() {
+            c.set_decoders(c.chunks_in(writer.most_rows_per_write()).min(denoiser.threads()))?;
+        }
         // The output is encoded on a thread of its own (OpenEXR compresses a 4K file's rows
         // a chunk at a time), while the next bands are read and denoised; a band is handed
         // over only when the previous one is written, so at most two are in flight.
@@ -341,28 +346,45 @@ impl FileJob {
                         Written::Rows { rows, copies, denoised } => {
                             let channels = &parts[part].1;
                             let names = copied(channels);
-                            // Decoded here when no band kept them (the copier is opened then).
-                            let copies = match (copies, copier.as_mut()) {
-                                (Some(fb), _) => fb,
-                                (None, Some(copier)) if !names.is_empty() => {
-                                    timed(&mut spent[0], || copier.read_band(Some(&names), rows.start, rows.end))?
-                                }
-                                (None, _) => FrameBuffers::new(0, 0),
-                            };
-                            let started = std::time::Instant::now();
                             let new = denoised.as_ref().map(|d| new_planes(d, aovs)).unwrap_or_default();
-                            let planes = channels
-                                .iter()
-                                .map(|(_, _, src)| match src {
-                                    Src::New(k) => Ok(new[*k]),
-                                    Src::Input(n) => copies.channel(n).ok_or_else(|| IoError::NoSuchChannel {
-                                        path: copies.display_path(),
-                                        channel: n.clone(),
-                                    }),
-                                })
-                                .collect::<Result<Vec<&[f32]>, IoError>>()?;
-                            writer.write_band(&planes, rows.len())?;
-                            spent[1] += started.elapsed();
+                            // In pieces of what the writer takes per call, so that the copier
+                            // decodes no more rows at a time than are encoded (a 4K band's 41
+                            // channels: 10 MB a piece against 40 MB a band).
+                            let piece = writer.rows_per_write();
+                            let w = writer.width();
+                            for r0 in (0..rows.len()).step_by(piece) {
+                                let r1 = (r0 + piece).min(rows.len());
+                                // Decoded here when no band kept them (the copier is opened then).
+                                let decoded;
+                                let (copies, at) = match (&copies, copier.as_mut()) {
+                                    (Some(fb), _) => (fb, r0),
+                                    (None, Some(copier)) if !names.is_empty() => {
+                                        let (a, b) = (rows.start + r0, rows.start + r1);
+                                        decoded = timed(&mut spent[0], || copier.read_band(Some(&names), a, b))?;
+                                        (&decoded, 0)
+                                    }
+                                    (None, _) => {
+                                        decoded = FrameBuffers::new(0, 0);
+                                        (&decoded, 0)
+                                    }
+                                };
+                                let started = std::time::Instant::now();
+                                let planes = channels
+                                    .iter()
+                                    .map(|(_, _, src)| match src {
+                                        Src::New(k) => Ok(&new[*k][r0 * w..r1 * w]),
+                                        Src::Input(n) => copies
+                                            .channel(n)
+                                            .map(|c| &c[at * w..(at + r1 - r0) * w])
+                                            .ok_or_else(|| IoError::NoSuchChannel {
+                                                path: copies.display_path(),
+                                                channel: n.clone(),
+                                            }),
+                                    })
+                                    .collect::<Result<Vec<&[f32]>, IoError>>()?;
+                                writer.write_band(&planes, r1 - r0)?;
+                                spent[1] += started.elapsed();
+                            }
                         }
                     }
                 }

@@ -405,6 +405,13 @@ impl FrameReader {
         &self.header
     }
 
+    /// The most compressed chunks (or tiles) a read of `rows` rows starting on a chunk's
+    /// first row spans in any part: more decoders than this never share such a read.
+    pub fn chunks_in(&self, rows: usize) -> usize {
+        let chunk = |i: &SubimageInfo| if i.tile_height > 0 { i.tile_height } else { self.chunk_rows };
+        self.subimages.iter().map(|i| rows.div_ceil(chunk(i).max(1))).max().unwrap_or(1).max(1)
+    }
+
     /// Channel names in file order (as [`FrameBuffers::read`] names them).
     pub fn channel_names(&self) -> impl Iterator<Item = &str> {
         self.channels.iter().map(|c| c.name.as_str())

@@ -189,8 +189,8 @@ impl FrameWriter {
                 self.err(format!("a band of {} channels × {n} samples; the part has {nch} channels", planes.len()))
             );
         }
+        let band = self.rows_per_write();
         let out = self.out.as_mut().expect("open until commit");
-        let band = super::rows_per_call(nch) * self.encoders;
         for r0 in (0..rows).step_by(band) {
             let r1 = (r0 + band).min(rows);
             self.scratch.clear();
@@ -204,6 +204,23 @@ impl FrameWriter {
         }
         self.row += rows;
         Ok(())
+    }
+
+    /// Rows of the current part that one [`write_band`](FrameWriter::write_band) call
+    /// hands OpenEXR at a time (a chunk per encoder): a caller that decodes what it writes
+    /// can do so in pieces of this many rows without slowing the encoders.
+    pub fn rows_per_write(&self) -> usize {
+        super::rows_per_call(self.nchannels[self.part]) * self.encoders
+    }
+
+    /// The most rows any part's [`rows_per_write`](FrameWriter::rows_per_write) is.
+    pub fn most_rows_per_write(&self) -> usize {
+        self.nchannels.iter().map(|&n| super::rows_per_call(n) * self.encoders).max().unwrap_or(1)
+    }
+
+    /// Width of the data window, in pixels.
+    pub fn width(&self) -> usize {
+        self.width
     }
 
     /// Finishes the current part and starts the next.
