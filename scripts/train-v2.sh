@@ -43,7 +43,8 @@
 #   kpcn model half WORK/balanced-auto/model.safetensors -o models/balanced.safetensors
 # and `compact` is WORK/compact-auto/model.safetensors as it is (f32); then each gets the
 # firefly clamp chosen on our Cycles corpus (models/README.md):
-#   kpcn model clamp models/MODEL.safetensors --clamp fine-pairs-twice -o models/MODEL.safetensors
+#   kpcn model clamp models/balanced.safetensors --clamp significant -o models/balanced.safetensors
+#   kpcn model clamp models/compact.safetensors --clamp fine-pairs-twice -o models/compact.safetensors
 # Runs at low priority (nice 19) so builds and tests beside it keep their cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -31,11 +31,13 @@ const OUTLIER_FLOOR: f32 = 0.5;
 /// another of the three.
 const KNOWN_OUTLIERS: &[(&str, u32, usize)] = &[];
 
-/// Crops whose error does not fall with samples (2026-12-02, `balanced`): (crop, relMSE at
-/// 4 / 16 / 64 spp, measured by this test with `--nocapture`): caustics of glass under
-/// two area lights, not yet diagnosed.
+/// Crops whose error does not fall with samples (`balanced`, measured by this test with
+/// `--nocapture`): (crop, relMSE at 4 / 16 / 64 spp): caustics of glass under two area
+/// lights on textured metal. With the `significant` clamp (2026-12-03) they fell from
+/// 0.2627 / 2.0287 / 0.6942 and 0.0318 / 0.0365 / 0.0852 (clusters of caustic hits it
+/// takes), but still rise between two of the counts.
 const KNOWN_GROWTH: &[(&str, [f64; 3])] =
-    &[("cyc-00052-x40y8", [0.2627, 2.0287, 0.6942]), ("cyc-00052-x200y24", [0.0318, 0.0365, 0.0852])];
+    &[("cyc-00052-x40y8", [0.2646, 0.5265, 0.3602]), ("cyc-00052-x200y24", [0.0319, 0.0276, 0.0755])];
 
 fn crop(name: &str, what: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/data/cycles-crops/{name}-{what}.exr"))

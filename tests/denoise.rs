@@ -129,7 +129,7 @@ proptest! {
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
         w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
-        clamp in 0usize..5, ladder in any::<bool>()
+        clamp in 0usize..7, ladder in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
         // the receptive radius as halo, cut at the frame's border radius) reproduce the
@@ -139,7 +139,15 @@ proptest! {
         let model = || {
             let mut m = if ladder { tiny_multiscale_levels(4, 5) } else { tiny_ms() };
             use kpcn::model::Clamp;
-            m.arch.clamp = [Clamp::Hard, Clamp::Spread, Clamp::Coarse, Clamp::Fine, Clamp::FinePairs][clamp];
+            m.arch.clamp = [
+                Clamp::Hard,
+                Clamp::Spread,
+                Clamp::Coarse,
+                Clamp::Fine,
+                Clamp::FinePairs,
+                Clamp::FinePairsTwice,
+                Clamp::Significant,
+            ][clamp];
             m
         };
         let whole = run(model(), &k, Some(1024), 1);

@@ -41,8 +41,11 @@ pub enum ModelAction {
         /// The clamp: `hard` (the excess is lost), `spread` (shared over the 3×3
         /// neighbourhood), `coarse` (averaged into the coarsest scale), `fine` (full
         /// resolution only; the coarser scales pool the unclamped colour), `fine-pairs` (as
-        /// fine, to the second-brightest neighbour) or `fine-pairs-twice` (fine-pairs run
-        /// twice: clusters of three go too). `kpcn model info` shows a model's.
+        /// fine, to the second-brightest neighbour), `fine-pairs-twice` (fine-pairs run
+        /// twice: clusters of three go too) or `significant` (fine-pairs-twice, and a
+        /// pixel far above its 3×3 median by no more than three standard errors of its
+        /// mean goes to that median: clusters of one-sample hits of a small light go too).
+        /// `kpcn model info` shows a model's.
         #[arg(long, value_enum, value_name = "CLAMP")]
         clamp: Clamp,
         /// Output file (.safetensors).
@@ -131,6 +134,9 @@ pub fn describe(m: &Model) {
                 Clamp::Fine => "fine (full resolution only; coarser scales pool the unclamped colour)",
                 Clamp::FinePairs => "fine-pairs (as fine, to the second-brightest neighbour)",
                 Clamp::FinePairsTwice => "fine-pairs-twice (fine-pairs applied twice: clusters of three go)",
+                Clamp::Significant => {
+                    "significant (fine-pairs-twice, and rare bright samples: an excess over the 3×3 median within 3 standard errors)"
+                }
             };
             println!("  firefly clamp {clamp}");
             let specular = match a.specular {

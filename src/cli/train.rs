@@ -35,9 +35,12 @@ pub struct TrainArgs {
     #[arg(long, value_name = "FILE")]
     pub init: Option<PathBuf>,
     /// Firefly clamp of a multi-scale colour pyramid: `hard` (the excess is lost),
-    /// `spread` (shared over the 3×3 neighbourhood) or `coarse` (averaged into the
-    /// coarsest scale). Default: the preset's or the --init model's.
-    #[arg(long, value_enum, value_name = "hard|spread|coarse")]
+    /// `spread` (shared over the 3×3 neighbourhood), `coarse` (averaged into the
+    /// coarsest scale), `fine`, `fine-pairs`, `fine-pairs-twice` or `significant`
+    /// (`kpcn model clamp --help` says what each does; `significant` reads the variance,
+    /// which training batches do not carry, so it trains as `fine-pairs-twice` and is
+    /// stored as `significant`). Default: the preset's or the --init model's.
+    #[arg(long, value_enum, value_name = "CLAMP")]
     pub clamp: Option<Clamp>,
     /// What the specular kernels filter: `log` (ln(1 + s), as Bako et al.) or `linear`
     /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or

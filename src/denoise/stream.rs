@@ -139,11 +139,18 @@ pub(super) fn feed(
 ) {
     let (x0, rw) = (win.x0, win.rw);
     let input = f.branch_input(b, x0, y, rw, n);
-    let mut noisy = f.region(&f.colour(b).each_ref().map(Vec::as_slice), x0, y, rw, n);
-    if b == Branch::Specular && arch.specular == Specular::Linear {
-        noisy.iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
+    // The colour, and its variance where the clamp reads it (that of s̃ is of the log
+    // radiance, so linear specular kernels clamp without it).
+    let linear = b == Branch::Specular && arch.specular == Specular::Linear;
+    let mut planes: Vec<&[f32]> = f.colour(b).iter().map(Vec::as_slice).collect();
+    if arch.clamp.reads_variance() && !linear {
+        planes.push(f.variance(b));
     }
-    stream.push(Planes::from_vec(INPUT_CHANNELS, rw, n, input), Planes::from_vec(3, rw, n, noisy));
+    let mut noisy = f.region(&planes, x0, y, rw, n);
+    if linear {
+        noisy[..3 * rw * n].iter_mut().for_each(|v| *v = Specular::Linear.kernel_input(*v));
+    }
+    stream.push(Planes::from_vec(INPUT_CHANNELS, rw, n, input), Planes::from_vec(planes.len(), rw, n, noisy));
     while let Some((first, rows)) = stream.take() {
         for r in first.max(win.keep.start)..(first + rows.h).min(win.keep.end) {
             for (c, o) in out.iter_mut().enumerate() {

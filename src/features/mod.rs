@@ -279,6 +279,14 @@ impl Features {
         }
     }
 
+    /// The variance of the branch's noisy colour (of d̃ or s̃).
+    pub fn variance(&self, b: Branch) -> &[f32] {
+        match b {
+            Branch::Diffuse => &self.d_variance,
+            Branch::Specular => &self.s_variance,
+        }
+    }
+
     /// The branch's noisy colour c̃ (d̃ or s̃).
     pub fn colour(&self, b: Branch) -> &[Vec<f32>; 3] {
         match b {

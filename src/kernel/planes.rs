@@ -114,6 +114,58 @@ impl Planes {
         })
     }
 
+    /// Each value that stands out of its 3×3 neighbourhood (over twice its median, and by
+    /// more than `k` times the median of the 3×3 standard errors) yet by no more than `k`
+    /// of its own standard errors, lowered to that median, or to the most a neighbour
+    /// shows beyond `k` of its own (`variance`: one plane, the variance of each pixel's
+    /// mean). That is a rare bright sample: one hit of a small light gives a pixel a
+    /// standard error about its own value among neighbours that saw none, so it goes,
+    /// alone or among others like it. A highlight every sample saw, a pixel as noisy as
+    /// its neighbours, or one beside a neighbour as bright that every sample saw (the
+    /// edge of an emitter), stays.
+    pub fn clamp_insignificant(&self, variance: &[f32], k: f32) -> Planes {
+        let (w, h) = (self.w, self.h);
+        assert_eq!(variance.len(), w * h, "one variance per pixel");
+        let err: Vec<f32> = variance.iter().map(|v| v.max(0.0).sqrt()).collect();
+        Planes::by_rows(self.c, w, h, |c, y, dst| {
+            let ys = [y.saturating_sub(1), y, (y + 1).min(h - 1)];
+            let rows = ys.map(|r| self.row(c, r));
+            for (x, d) in dst.iter_mut().enumerate() {
+                let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
+                let v = rows[1][x];
+                *d = v;
+                // Most pixels are not over twice their median: when five of the nine reach
+                // half of the value, so does the median, and nothing is sorted.
+                let half = (v - 0.01) * 0.5;
+                if rows.iter().flat_map(|r| cols.map(|cx| r[cx])).filter(|&n| n >= half).count() >= 5 {
+                    continue;
+                }
+                let (mut n, mut e) = ([0f32; 9], [0f32; 9]);
+                for (i, &ry) in ys.iter().enumerate() {
+                    for (j, &cx) in cols.iter().enumerate() {
+                        n[3 * i + j] = rows[i][cx];
+                        e[3 * i + j] = err[ry * w + cx];
+                    }
+                }
+                let own = e[4];
+                // What a neighbour shows beyond its own noise, a pixel may show too.
+                let shown = (0..9).filter(|&i| i != 4).map(|i| n[i] - k * e[i]).fold(f32::NEG_INFINITY, f32::max);
+                let (_, &mut median, _) = n.select_nth_unstable_by(4, f32::total_cmp);
+                let (_, &mut around, _) = e.select_nth_unstable_by(4, f32::total_cmp);
+                if v - median > k * around && v - k * own <= median {
+                    *d = v.min(median.max(shown));
+                }
+            }
+        })
+    }
+
+    /// The smaller of `self` and `other` (same shape), value by value.
+    pub fn min(mut self, other: &Planes) -> Planes {
+        assert_eq!((self.c, self.w, self.h), (other.c, other.w, other.h), "planes differ in shape");
+        self.data.iter_mut().zip(&other.data).for_each(|(a, b)| *a = a.min(*b));
+        self
+    }
+
     /// [`Planes::clamp_to_neighbours`] without losing energy: what the clamp removes from a
     /// pixel is shared equally among the pixels of its 3×3 neighbourhood (itself included,
     /// those inside the frame), so every plane's sum is unchanged. A firefly becomes a
@@ -260,6 +312,26 @@ impl Planes {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_value_as_noisy_as_its_neighbours_is_never_clamped_for_significance() {
+        // A lit region at 16 spp: values 1 ± 0.3 with standard errors of 0.3 everywhere.
+        // However far a pixel sits above its median, its neighbours are as noisy, so it
+        // stays: the clamp only takes rare bright samples, never the upper half of noise.
+        let (w, h) = (9, 7);
+        let mut rng = crate::rng::SplitMix64(5);
+        let p = Planes::from_vec(1, w, h, (0..w * h).map(|_| 1.0 + 0.6 * (rng.uniform_f32() - 0.5)).collect());
+        let variance = vec![0.09; w * h];
+        assert_eq!(p.clamp_insignificant(&variance, 3.0), p);
+        // One sample of a light of 100 among them stands out: it goes to the median.
+        let mut q = p.clone();
+        q.data[3 * w + 4] = 1.0 + 100.0 / 16.0;
+        let mut variance = variance;
+        variance[3 * w + 4] = (100.0f32 / 16.0).powi(2);
+        let out = q.clamp_insignificant(&variance, 3.0);
+        assert!(out.data[3 * w + 4] < 1.3, "{}", out.data[3 * w + 4]);
+        assert!((0..w * h).filter(|&i| i != 3 * w + 4).all(|i| out.data[i] == q.data[i]), "nothing else moves");
+    }
 
     #[test]
     fn clamping_to_neighbours_removes_isolated_outliers_only() {

@@ -231,7 +231,19 @@ pub enum Clamp {
     /// `FinePairs` twice: a cluster of three (a diagonal, an L) goes too, since its ends
     /// go first; a line one pixel wide loses two pixels at each end.
     FinePairsTwice,
+    /// `FinePairsTwice`, and rare bright samples lowered to the 3×3 median: a value far
+    /// above that median, by more than [`SIGNIFICANT_ERRORS`] times its neighbours' own
+    /// standard errors but by no more than as many of its own
+    /// ([`Planes::clamp_insignificant`](crate::kernel::planes::Planes::clamp_insignificant),
+    /// from the variance features). Clusters of one-sample hits of a small bright light (a
+    /// defocused highlight's rim at 64 spp) go whatever their size; a highlight every
+    /// sample saw stays. A region without variances clamps as `FinePairsTwice`.
+    Significant,
 }
+
+/// Standard errors of a pixel's mean within which [`Clamp::Significant`] takes its
+/// excess over its neighbourhood for noise.
+pub const SIGNIFICANT_ERRORS: f32 = 3.0;
 
 impl Clamp {
     /// The name written in model files (`kpcn:clamp`).
@@ -243,7 +255,14 @@ impl Clamp {
             Clamp::Fine => "fine",
             Clamp::FinePairs => "fine-pairs",
             Clamp::FinePairsTwice => "fine-pairs-twice",
+            Clamp::Significant => "significant",
         }
+    }
+
+    /// Whether the clamp reads each pixel's variance beside the noisy colour (a fourth
+    /// plane of the colour the network is given).
+    pub fn reads_variance(self) -> bool {
+        self == Clamp::Significant
     }
 }
 

@@ -74,6 +74,7 @@ impl Architecture {
                 Some("fine") => Clamp::Fine,
                 Some("fine-pairs") => Clamp::FinePairs,
                 Some("fine-pairs-twice") => Clamp::FinePairsTwice,
+                Some("significant") => Clamp::Significant,
                 Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
             },
             // Files from before the choice were trained on the files' variances.

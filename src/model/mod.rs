@@ -15,7 +15,9 @@ pub mod pyramid;
 pub mod registry;
 pub mod stream;
 
-pub use architecture::{Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, Specular, Variances};
+pub use architecture::{
+    Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, Specular, Variances,
+};
 pub use format::{FORMAT_VERSION, model_file_with_clamp, write_atomically};
 
 /// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
@@ -240,7 +242,7 @@ mod tests {
             let exposure = if q == Quality::Balanced { Exposure::Auto } else { Exposure::Raw };
             // Trained with the preset's clamp, shipped with the one chosen on our corpus
             // (`kpcn model clamp`; models/README.md).
-            let clamp = Clamp::FinePairsTwice;
+            let clamp = if q == Quality::Balanced { Clamp::Significant } else { Clamp::FinePairsTwice };
             assert_eq!(m.arch, Architecture { exposure, clamp, ..Architecture::ladder(q) }, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }

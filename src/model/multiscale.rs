@@ -22,7 +22,7 @@
 //! candle tensors for training ([`Graph`], differentiable) and plain planes for
 //! inference (`super::pyramid`). Both call the same kernels.
 
-use super::{Architecture, BranchWeights, Clamp, ModelError};
+use super::{Architecture, BranchWeights, Clamp, ModelError, SIGNIFICANT_ERRORS};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::ops::Ops;
 use crate::kernel::planes::Planes;
@@ -142,6 +142,18 @@ pub fn receptive_radius(a: &Architecture) -> usize {
 /// averages also stop 2-pixel fireflies, but their downward bias on skewed low-sample
 /// noise cost more than they saved: measured on held-out simulator frames.)
 pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes> {
+    // A fourth plane, where the caller gives one ([`Clamp::reads_variance`]), is each
+    // pixel's variance.
+    let (noisy, variance) = if noisy.c == 4 {
+        let n = noisy.w * noisy.h;
+        let variance = noisy.plane(3).to_vec();
+        let mut colour = noisy;
+        colour.data.truncate(3 * n);
+        colour.c = 3;
+        (colour, Some(variance))
+    } else {
+        (noisy, None)
+    };
     let (first, mut excess) = match clamp {
         Clamp::Hard => (noisy.clamp_to_neighbours(), None),
         Clamp::Spread => (noisy.clamp_to_neighbours_spreading(), None),
@@ -150,10 +162,15 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
             let excess = noisy.minus(&clamped);
             (clamped, Some(excess))
         }
-        Clamp::Fine | Clamp::FinePairs | Clamp::FinePairsTwice => {
+        Clamp::Fine | Clamp::FinePairs | Clamp::FinePairsTwice | Clamp::Significant => {
             let clamped = match clamp {
                 Clamp::Fine => noisy.clamp_to_neighbours(),
                 Clamp::FinePairs => noisy.clamp_to_second_neighbour(),
+                Clamp::Significant if variance.is_some() => {
+                    let twice = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
+                    let variance = variance.as_deref().unwrap_or_default();
+                    twice.min(&noisy.clamp_insignificant(variance, SIGNIFICANT_ERRORS))
+                }
                 _ => noisy.clamp_to_second_neighbour().clamp_to_second_neighbour(),
             };
             let mut colour = vec![clamped];
@@ -385,6 +402,52 @@ mod tests {
         assert!((0..3).all(|d| twice.data[(2 + d) * w + 3 + d] == 0.25), "twice, none stays");
         assert!((6..9).all(|c| twice.data[8 * w + c] == 2.0), "a line's middle stays");
         assert!([4, 5, 9, 10].iter().all(|&c| twice.data[8 * w + c] < 2.0), "its two end pixels each side go");
+    }
+
+    #[test]
+    fn a_cluster_of_one_sample_hits_goes_only_with_the_significance_clamp() {
+        // The rim of a defocused bulb at 64 spp (the dev set's `bokeh`): a 2×2 block of four
+        // pixels that one sample each of a light of 307 reached (4.8, a standard error of
+        // 4.8), on a background every sample saw alike (0.018, no variance). Its pixels
+        // have one another as neighbours, so `fine-pairs-twice` keeps them; the
+        // significance clamp takes them to the background. Beside them, a highlight as large
+        // that every sample saw (4.8, a standard error of 0.1) stays, and so does the edge of an
+        // emitter (7 in 2 of 4 samples, beside 14 that every sample saw).
+        let (w, h) = (16, 12);
+        let (mut x, mut var) = (vec![0.018f32; 4 * w * h], vec![0f32; w * h]);
+        let set = |x: &mut Vec<f32>, var: &mut Vec<f32>, (px, py): (usize, usize), v: f32, e: f32| {
+            for c in 0..3 {
+                x[c * w * h + py * w + px] = v;
+            }
+            var[py * w + px] = e * e;
+        };
+        for p in [(3, 3), (4, 3), (3, 4), (4, 4)] {
+            set(&mut x, &mut var, p, 4.8, 4.8);
+        }
+        for p in [(10, 3), (11, 3), (10, 4), (11, 4)] {
+            set(&mut x, &mut var, p, 4.8, 0.1);
+        }
+        for px in 8..14 {
+            set(&mut x, &mut var, (px, 8), 14.0, 0.0);
+        }
+        set(&mut x, &mut var, (10, 9), 7.0, 4.1);
+        x[3 * w * h..].copy_from_slice(&var);
+        let twice = colour_pyramid(Planes::from_vec(4, w, h, x.clone()), 2, Clamp::FinePairsTwice);
+        let significant = colour_pyramid(Planes::from_vec(4, w, h, x.clone()), 2, Clamp::Significant);
+        let (t, s) = (&twice[0], &significant[0]);
+        assert_eq!((t.c, s.c, significant[1].c), (3, 3, 3), "the variance is read, not passed on");
+        assert!(
+            [(3, 3), (4, 3), (3, 4), (4, 4)].iter().all(|&(px, py)| t.data[py * w + px] == 4.8),
+            "twice keeps them"
+        );
+        assert!([(3, 3), (4, 3), (3, 4), (4, 4)].iter().all(|&(px, py)| s.data[py * w + px] == 0.018), "they go");
+        assert_eq!(s.data[3 * w + 10], 4.8, "the highlight stays");
+        assert_eq!(s.data[9 * w + 10], 7.0, "the emitter's edge stays");
+        // Coarser scales pool the unclamped colour: the hits' light is kept there.
+        assert_eq!(significant[1], twice[1]);
+        // Without a variance plane it is `fine-pairs-twice`.
+        x.truncate(3 * w * h);
+        assert_eq!(colour_pyramid(Planes::from_vec(3, w, h, x), 2, Clamp::Significant)[0], *t);
     }
 
     #[test]

@@ -64,7 +64,8 @@ impl Weights {
 
 /// Denoised `c̃` (three `w × h` planes) of a `w × h` region (sides multiples of
 /// [`Architecture::alignment`]) evaluated whole: `input` its 27 CHW feature planes,
-/// `noisy` its `c̃`. The reference the streamed evaluation is tested against.
+/// `noisy` its `c̃` (and its variance, a fourth plane, where the clamp reads it). The
+/// reference the streamed evaluation is tested against.
 #[cfg(test)]
 pub fn forward(
     arch: &Architecture,
@@ -75,7 +76,7 @@ pub fn forward(
     h: usize,
 ) -> [Vec<f32>; 3] {
     let input = Planes::from_vec(INPUT_CHANNELS, w, h, input);
-    let noisy = Planes::from_vec(3, w, h, noisy);
+    let noisy = Planes::from_vec(noisy.len() / (w * h).max(1), w, h, noisy);
     let out = match multiscale::run(arch, &Region { arch, weights }, input, noisy) {
         Ok(out) => out,
         Err(e) => match e {},

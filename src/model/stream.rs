@@ -487,9 +487,12 @@ mod tests {
             let (w, h) = (64, 6 * arch.alignment().max(32));
             let mut rng = crate::rng::SplitMix64(seed);
             let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
-            // Sparse bright samples, so the clamp and the kernels have outliers to handle.
-            let noisy: Vec<f32> =
-                (0..3 * w * h).map(|_| if rng.uniform_f32() < 0.02 { 50.0 } else { rng.uniform_f32() }).collect();
+            // Sparse bright samples, so the clamp and the kernels have outliers to handle;
+            // and a variance where the clamp reads one (`balanced`'s), large and small.
+            let channels = if arch.clamp.reads_variance() { 4 } else { 3 };
+            let noisy: Vec<f32> = (0..channels * w * h)
+                .map(|_| if rng.uniform_f32() < 0.02 { 50.0 } else { rng.uniform_f32() })
+                .collect();
             let weights = Weights::new(&arch, &model.specular).unwrap();
             let whole = pyramid::forward(&arch, &weights, input.clone(), noisy.clone(), w, h);
             for rows_per_push in [7, 32, h] {
@@ -505,7 +508,7 @@ mod tests {
                         }
                         Planes::from_vec(c, w, n, v)
                     };
-                    s.push(part(&input, INPUT_CHANNELS), part(&noisy, 3));
+                    s.push(part(&input, INPUT_CHANNELS), part(&noisy, channels));
                     while let Some((first, rows)) = s.take() {
                         assert_eq!(first * w, got[0].len(), "rows in order");
                         for (c, g) in got.iter_mut().enumerate() {
