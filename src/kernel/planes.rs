@@ -151,8 +151,11 @@ impl Planes {
                 // What a neighbour shows beyond its own noise, a pixel may show too.
                 let shown = (0..9).filter(|&i| i != 4).map(|i| n[i] - k * e[i]).fold(f32::NEG_INFINITY, f32::max);
                 let (_, &mut median, _) = n.select_nth_unstable_by(4, f32::total_cmp);
+                if v - k * own > median {
+                    continue;
+                }
                 let (_, &mut around, _) = e.select_nth_unstable_by(4, f32::total_cmp);
-                if v - median > k * around && v - k * own <= median {
+                if v - median > k * around {
                     *d = v.min(median.max(shown));
                 }
             }

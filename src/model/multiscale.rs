@@ -163,12 +163,11 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
             (clamped, Some(excess))
         }
         Clamp::Fine | Clamp::FinePairs | Clamp::FinePairsTwice | Clamp::Significant => {
-            let clamped = match clamp {
-                Clamp::Fine => noisy.clamp_to_neighbours(),
-                Clamp::FinePairs => noisy.clamp_to_second_neighbour(),
-                Clamp::Significant if variance.is_some() => {
+            let clamped = match (clamp, variance.as_deref()) {
+                (Clamp::Fine, _) => noisy.clamp_to_neighbours(),
+                (Clamp::FinePairs, _) => noisy.clamp_to_second_neighbour(),
+                (Clamp::Significant, Some(variance)) => {
                     let twice = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
-                    let variance = variance.as_deref().unwrap_or_default();
                     twice.min(&noisy.clamp_insignificant(variance, SIGNIFICANT_ERRORS))
                 }
                 _ => noisy.clamp_to_second_neighbour().clamp_to_second_neighbour(),
