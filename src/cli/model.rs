@@ -43,8 +43,8 @@ pub enum ModelAction {
         /// resolution only; the coarser scales pool the unclamped colour), `fine-pairs` (as
         /// fine, to the second-brightest neighbour), `fine-pairs-twice` (fine-pairs run
         /// twice: clusters of three go too) or `significant` (fine-pairs-twice, and a
-        /// pixel far above its 3×3 median by no more than three standard errors of its
-        /// mean goes to that median: clusters of one-sample hits of a small light go too).
+        /// pixel far above its 3×3 median keeps only what it shows beyond three standard
+        /// errors of its mean: clusters of one-sample hits of a small light go too).
         /// `kpcn model info` shows a model's.
         #[arg(long, value_enum, value_name = "CLAMP")]
         clamp: Clamp,
@@ -135,7 +135,7 @@ pub fn describe(m: &Model) {
                 Clamp::FinePairs => "fine-pairs (as fine, to the second-brightest neighbour)",
                 Clamp::FinePairsTwice => "fine-pairs-twice (fine-pairs applied twice: clusters of three go)",
                 Clamp::Significant => {
-                    "significant (fine-pairs-twice, and rare bright samples: an excess over the 3×3 median within 3 standard errors)"
+                    "significant (fine-pairs-twice, and rare bright samples: what stands out keeps only its excess beyond 3 standard errors)"
                 }
             };
             println!("  firefly clamp {clamp}");

@@ -115,14 +115,14 @@ impl Planes {
     }
 
     /// Each value that stands out of its 3×3 neighbourhood (over twice its median, and by
-    /// more than `k` times the median of the 3×3 standard errors) yet by no more than `k`
-    /// of its own standard errors, lowered to that median, or to the most a neighbour
-    /// shows beyond `k` of its own (`variance`: one plane, the variance of each pixel's
-    /// mean). That is a rare bright sample: one hit of a small light gives a pixel a
-    /// standard error about its own value among neighbours that saw none, so it goes,
-    /// alone or among others like it. A highlight every sample saw, a pixel as noisy as
-    /// its neighbours, or one beside a neighbour as bright that every sample saw (the
-    /// edge of an emitter), stays.
+    /// more than `k` times the median of the 3×3 standard errors) keeps only what it shows
+    /// beyond `k` of its own standard errors, down to that median, or to the most a
+    /// neighbour shows beyond `k` of its own (`variance`: one plane, the variance of each
+    /// pixel's mean). One hit of a small light gives a pixel a standard error about its
+    /// own value among neighbours that saw none, so it goes, alone or among others like
+    /// it. A highlight every sample saw loses its few standard errors; a pixel as noisy as
+    /// its neighbours, or one beside a neighbour as bright that every sample saw (the edge
+    /// of an emitter), stays.
     pub fn clamp_insignificant(&self, variance: &[f32], k: f32) -> Planes {
         let (w, h) = (self.w, self.h);
         assert_eq!(variance.len(), w * h, "one variance per pixel");
@@ -151,12 +151,9 @@ impl Planes {
                 // What a neighbour shows beyond its own noise, a pixel may show too.
                 let shown = (0..9).filter(|&i| i != 4).map(|i| n[i] - k * e[i]).fold(f32::NEG_INFINITY, f32::max);
                 let (_, &mut median, _) = n.select_nth_unstable_by(4, f32::total_cmp);
-                if v - k * own > median {
-                    continue;
-                }
                 let (_, &mut around, _) = e.select_nth_unstable_by(4, f32::total_cmp);
                 if v - median > k * around {
-                    *d = v.min(median.max(shown));
+                    *d = v.min(median.max(v - k * own).max(shown));
                 }
             }
         })

@@ -231,13 +231,14 @@ pub enum Clamp {
     /// `FinePairs` twice: a cluster of three (a diagonal, an L) goes too, since its ends
     /// go first; a line one pixel wide loses two pixels at each end.
     FinePairsTwice,
-    /// `FinePairsTwice`, and rare bright samples lowered to the 3×3 median: a value far
-    /// above that median, by more than [`SIGNIFICANT_ERRORS`] times its neighbours' own
-    /// standard errors but by no more than as many of its own
+    /// `FinePairsTwice`, and rare bright samples taken down: a value far above its 3×3
+    /// median, by more than [`SIGNIFICANT_ERRORS`] times its neighbours' own standard
+    /// errors, keeps only what it shows beyond as many of its own
     /// ([`Planes::clamp_insignificant`](crate::kernel::planes::Planes::clamp_insignificant),
     /// from the variance features). Clusters of one-sample hits of a small bright light (a
     /// defocused highlight's rim at 64 spp) go whatever their size; a highlight every
-    /// sample saw stays. A region without variances clamps as `FinePairsTwice`.
+    /// sample saw stays but for those errors. A region without variances clamps as
+    /// `FinePairsTwice`.
     Significant,
 }
 
