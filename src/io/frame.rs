@@ -408,8 +408,12 @@ impl FrameReader {
     /// The most compressed chunks (or tiles) a read of `rows` rows starting on a chunk's
     /// first row spans in any part: more decoders than this never share such a read.
     pub fn chunks_in(&self, rows: usize) -> usize {
-        let chunk = |i: &SubimageInfo| if i.tile_height > 0 { i.tile_height } else { self.chunk_rows };
-        self.subimages.iter().map(|i| rows.div_ceil(chunk(i).max(1))).max().unwrap_or(1).max(1)
+        self.subimages.iter().map(|i| rows.div_ceil(self.chunk_of(i).max(1))).max().unwrap_or(1).max(1)
+    }
+
+    /// Rows of one compressed chunk of a part: its tiles' height, or its compression's.
+    fn chunk_of(&self, info: &SubimageInfo) -> usize {
+        if info.tile_height > 0 { info.tile_height } else { self.chunk_rows }
     }
 
     /// Channel names in file order (as [`FrameBuffers::read`] names them).
@@ -517,7 +521,7 @@ impl FrameReader {
             };
             // A handle per decoder, for reads long enough to share (a chunk each at least),
             // starting with the one that decoded the previous read's last rows.
-            let chunk = if info.tile_height > 0 { info.tile_height } else { self.chunk_rows };
+            let chunk = self.chunk_of(info);
             let chunks = (y1 - y0 + y0 % chunk).div_ceil(chunk);
             let count = self.more.len() + 1;
             let (decoders, start) = (count.min(chunks).max(1), self.last_decoder % count);

@@ -210,12 +210,17 @@ impl FrameWriter {
     /// hands OpenEXR at a time (a chunk per encoder): a caller that decodes what it writes
     /// can do so in pieces of this many rows without slowing the encoders.
     pub fn rows_per_write(&self) -> usize {
-        super::rows_per_call(self.nchannels[self.part]) * self.encoders
+        self.rows_per_write_of(self.nchannels[self.part])
     }
 
     /// The most rows any part's [`rows_per_write`](FrameWriter::rows_per_write) is.
     pub fn most_rows_per_write(&self) -> usize {
-        self.nchannels.iter().map(|&n| super::rows_per_call(n) * self.encoders).max().unwrap_or(1)
+        self.nchannels.iter().map(|&n| self.rows_per_write_of(n)).max().unwrap_or(1)
+    }
+
+    /// Rows per write of a part of `channels` channels.
+    fn rows_per_write_of(&self, channels: usize) -> usize {
+        super::rows_per_call(channels) * self.encoders
     }
 
     /// Width of the data window, in pixels.
