@@ -26,8 +26,11 @@
 #      every 5th scene held out (WORK/MODEL/run, its learning curve in log.csv); `spatial`
 #      on spatial variance estimates with --permute-channels, as it was trained;
 #   3. the shipped form: f16 for the ladder's rungs (`kpcn model half`), f32 for `compact`
-#      and `spatial`, with the firefly clamp fine-pairs-twice
-#      (`kpcn model clamp`), WORK/MODEL.safetensors; copy it to models/MODEL.safetensors.
+#      and `spatial`, with the firefly clamp (`kpcn model clamp`: significant for `balanced`,
+#      fine-pairs-twice for the others) and the specular branch bounded to 2 standard
+#      errors of each pixel's mean (`kpcn model bound`: without it the new branch spreads
+#      caustic fireflies into dark neighbours and blurs textures every sample saw),
+#      WORK/MODEL.safetensors; copy it to models/MODEL.safetensors (`balanced` ships so).
 # Score it against MODEL on the held-out scenes with
 #   benches/quality_corpus.sh WORK/MODEL/data MODEL WORK/MODEL.safetensors
 set -euo pipefail
@@ -62,5 +65,8 @@ case $model in
     fast | balanced | high) "$kpcn" model half "$work/$model/run/model.safetensors" -o "$work/$model.safetensors" ;;
     *) cp "$work/$model/run/model.safetensors" "$work/$model.safetensors" ;;
 esac
-"$kpcn" model clamp "$work/$model.safetensors" --clamp fine-pairs-twice -o "$work/$model.safetensors"
+clamp=fine-pairs-twice
+[ "$model" = balanced ] && clamp=significant
+"$kpcn" model clamp "$work/$model.safetensors" --clamp "$clamp" -o "$work/$model.safetensors"
+"$kpcn" model bound "$work/$model.safetensors" --errors 2 -o "$work/$model.safetensors"
 echo "$work/$model.safetensors"

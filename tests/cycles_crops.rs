@@ -35,9 +35,12 @@ const KNOWN_OUTLIERS: &[(&str, u32, usize)] = &[];
 /// `--nocapture`): (crop, relMSE at 4 / 16 / 64 spp): caustics of glass under two area
 /// lights on textured metal. With the `significant` clamp (2026-12-03) they fell from
 /// 0.2627 / 2.0287 / 0.6942 and 0.0318 / 0.0365 / 0.0852 (clusters of caustic hits it
-/// takes), but still rise between two of the counts.
+/// takes), but still rise between two of the counts. With the retrained specular branch,
+/// bounded to two standard errors (2026-12-03, eighth session), from 0.2647 / 0.5157 /
+/// 0.3562 and 0.0319 / 0.0269 / 0.0755: the first falls at every count, the second's
+/// 64-spp frame rises 15 % (its textured metal keeps less detail).
 const KNOWN_GROWTH: &[(&str, [f64; 3])] =
-    &[("cyc-00052-x40y8", [0.2647, 0.5157, 0.3562]), ("cyc-00052-x200y24", [0.0319, 0.0269, 0.0755])];
+    &[("cyc-00052-x40y8", [0.2378, 0.2680, 0.2872]), ("cyc-00052-x200y24", [0.0301, 0.0251, 0.0866])];
 
 fn crop(name: &str, what: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/data/cycles-crops/{name}-{what}.exr"))
@@ -126,9 +129,8 @@ fn the_outlier_measure_finds_a_firefly_and_passes_the_reference() {
 /// pixels it keeps exactly, measured by the test below): their softmax kernels saturated
 /// to one tap while training (`--loss l1` and `relative` both reward keeping sparse
 /// specular noise where it is; BENCHMARKS.md "The specular branch that never trained").
-/// Each must not keep more; a retrained one leaves this list.
-const KNOWN_IDENTITY_SPECULAR: &[(&str, f64)] =
-    &[("fast", 0.71), ("high", 0.71), ("spatial", 0.71), ("compact", 0.71), ("balanced", 0.71)];
+/// Each must not keep more; a retrained one leaves this list (`balanced`, 2026-12-03).
+const KNOWN_IDENTITY_SPECULAR: &[(&str, f64)] = &[("fast", 0.71), ("high", 0.71), ("spatial", 0.71), ("compact", 0.71)];
 
 /// The share of the specular pixels (noisy specular above 0.01) that a model returns
 /// exactly as they came (within 0.1 %), over the crops at 16 spp.

@@ -25,6 +25,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
+            specular_bound: None,
         },
         3,
     )

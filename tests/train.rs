@@ -75,6 +75,7 @@ fn tiny() -> Model {
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
+            specular_bound: None,
         },
         1,
     )

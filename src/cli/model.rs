@@ -3,7 +3,8 @@
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use kpcn::model::{
-    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_clamp, registry, write_atomically,
+    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_clamp, model_file_with_specular_bound, registry,
+    write_atomically,
 };
 use std::path::PathBuf;
 
@@ -48,6 +49,21 @@ pub enum ModelAction {
         /// `kpcn model info` shows a model's.
         #[arg(long, value_enum, value_name = "CLAMP")]
         clamp: Clamp,
+        /// Output file (.safetensors).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Rewrite a model with its specular branch bounded: an inference-time choice, so every
+    /// weight is kept bit for bit (the default's last build step)
+    Bound {
+        /// Model name or file.
+        model: String,
+        /// The most the specular branch may move a pixel from its noisy value, in standard
+        /// errors of that pixel's mean (from its variance): a firefly, whose error is about
+        /// its value, still goes, while a dark pixel beside it cannot take its energy and
+        /// a texture every sample saw keeps its detail. 0 lifts the bound.
+        #[arg(long, value_name = "ERRORS")]
+        errors: u8,
         /// Output file (.safetensors).
         #[arg(short, long)]
         output: PathBuf,
@@ -144,6 +160,10 @@ pub fn describe(m: &Model) {
                 kpcn::model::Specular::Linear => "linear radiance (energy-preserving)",
             };
             println!("  specular      kernels filter {specular}");
+            match a.specular_bound {
+                Some(k) => println!("  specular      moved at most {k} standard errors of each pixel's mean"),
+                None => println!("  specular      unbounded (as far as its kernels take it)"),
+            }
         }
     }
     let variances = match a.variances {
@@ -178,11 +198,14 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
             println!("{}", output.display());
         }
         ModelAction::Clamp { model, clamp, output } => {
-            let bytes = match registry::shipped(model) {
-                Some(s) => s.bytes().to_vec(),
-                None => std::fs::read(model).with_context(|| format!("{model}: cannot read the model"))?,
-            };
-            let rewritten = model_file_with_clamp(&bytes, *clamp, model)?;
+            let rewritten = model_file_with_clamp(&model_bytes(model)?, *clamp, model)?;
+            write_atomically(output, &rewritten)
+                .with_context(|| format!("{}: cannot write the model", output.display()))?;
+            println!("{}", output.display());
+        }
+        ModelAction::Bound { model, errors, output } => {
+            let rewritten =
+                model_file_with_specular_bound(&model_bytes(model)?, Some(*errors).filter(|&k| k > 0), model)?;
             write_atomically(output, &rewritten)
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());
@@ -195,4 +218,12 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The bytes of a shipped model by name, or of a model file.
+fn model_bytes(model: &str) -> anyhow::Result<Vec<u8>> {
+    match registry::shipped(model) {
+        Some(s) => Ok(s.bytes().to_vec()),
+        None => std::fs::read(model).with_context(|| format!("{model}: cannot read the model")),
+    }
 }

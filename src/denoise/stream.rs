@@ -4,7 +4,7 @@
 //! evaluated twice, so bands need only the few context rows their features need
 //! ([`crate::features::CONTEXT`]), and the result is the whole frame's bit for bit.
 
-use super::{Denoised, Denoiser, recompose};
+use super::{Denoised, Denoiser, NoisySpecular, recompose};
 use crate::features::{Branch, Features, INPUT_CHANNELS};
 use crate::io::layout::Remainder;
 use crate::kernel::planes::Planes;
@@ -32,8 +32,8 @@ pub(super) struct FrameStream<'a> {
     pushed: usize,
     /// Each branch's output rows from `emitted` on, the frame's columns only.
     out: [[Vec<f32>; 3]; 2],
-    /// Bands pushed and not yet emitted: their rows, albedo and remainder.
-    pending: VecDeque<(Range<usize>, [Vec<f32>; 3], Remainder)>,
+    /// Bands pushed and not yet emitted.
+    pending: VecDeque<Pending>,
     exposure: f32,
 }
 
@@ -78,7 +78,8 @@ impl<'a> FrameStream<'a> {
         let end = if band.end == self.height { rh } else { (band.end as isize - y0) as usize };
         let albedo =
             std::array::from_fn(|c| f.albedo[c][(band.start - f_start) * w..(band.end - f_start) * w].to_vec());
-        self.pending.push_back((band, albedo, remainder));
+        let noisy_specular = NoisySpecular::of(&self.denoiser.model.arch, f, band.start - f_start..band.end - f_start);
+        self.pending.push_back(Pending { rows: band, albedo, remainder, noisy_specular });
         self.exposure = f.exposure;
         let (arch, height) = (&self.denoiser.model.arch, self.height);
         while self.pushed < end {
@@ -101,19 +102,29 @@ impl<'a> FrameStream<'a> {
     /// The next band whose result is complete, in order.
     pub(super) fn ready(&mut self) -> Option<(Range<usize>, Denoised)> {
         let rows = self.out[0][0].len().min(self.out[1][0].len()) / self.width.max(1);
-        let first = self.pending.front()?.0.start;
-        if first + rows < self.pending.front()?.0.end {
+        let first = self.pending.front()?.rows.start;
+        if first + rows < self.pending.front()?.rows.end {
             return None;
         }
-        let (band, albedo, remainder) = self.pending.pop_front()?;
+        let Pending { rows: band, albedo, remainder, noisy_specular } = self.pending.pop_front()?;
         let n = band.len() * self.width;
         let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
         let (d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
         let domain = self.denoiser.model.arch.specular;
-        let mut d = recompose(&albedo, &d_hat, &s_hat, (self.width, band.len()), domain, self.exposure);
+        let (size, bound) = ((self.width, band.len()), noisy_specular.as_ref());
+        let mut d = recompose(&albedo, &d_hat, &s_hat, size, domain, self.exposure, bound);
         d.carry(&remainder);
         Some((band, d))
     }
+}
+
+/// A band pushed into a [`FrameStream`] whose result has not come out.
+struct Pending {
+    rows: Range<usize>,
+    albedo: [Vec<f32>; 3],
+    remainder: Remainder,
+    /// What bounds the specular branch, where the model does.
+    noisy_specular: Option<NoisySpecular>,
 }
 
 /// Where a stream's region lies and what of its output is kept: the region's first column

@@ -51,6 +51,9 @@ pub struct Architecture {
     pub specular: Specular,
     /// How the radiance inputs are scaled before the network sees them.
     pub exposure: Exposure,
+    /// The most the specular branch moves a pixel from its noisy value, in standard errors
+    /// of that pixel's mean (`kpcn:specular_bound`); `None`: as far as its kernels take it.
+    pub specular_bound: Option<u8>,
 }
 
 /// How a model's radiance inputs are scaled (`kpcn:exposure`). Convolutions with biases
@@ -286,6 +289,7 @@ impl Architecture {
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
+            specular_bound: None,
         }
     }
 
@@ -302,6 +306,7 @@ impl Architecture {
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
+            specular_bound: None,
         }
     }
 
@@ -320,6 +325,7 @@ impl Architecture {
             variances: Variances::File,
             specular: Specular::Log,
             exposure: Default::default(),
+            specular_bound: None,
         }
     }
 

@@ -30,6 +30,7 @@ impl Architecture {
             ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
         ]
         .into_iter()
+        .chain(self.specular_bound.map(|k| ("kpcn:specular_bound", k.to_string())))
         .map(|(k, v)| (k.to_string(), v))
         .collect()
     }
@@ -94,6 +95,15 @@ impl Architecture {
                 None | Some("raw") => Exposure::Raw,
                 Some("auto") => Exposure::Auto,
                 Some(other) => return Err(err(format!("unknown exposure `{other}`"))),
+            },
+            // Files from before the choice leave the specular branch unbounded.
+            specular_bound: match m.get("kpcn:specular_bound") {
+                None => None,
+                Some(k) => Some(k.parse().ok().filter(|&k| k > 0).ok_or_else(|| {
+                    err(format!(
+                        "metadata `kpcn:specular_bound` is `{k}`, not a whole number of standard errors from 1 to 255"
+                    ))
+                })?),
             },
         };
         a.validate(origin)?;
@@ -204,9 +214,26 @@ pub fn model_file_with_clamp(bytes: &[u8], clamp: Clamp, origin: &str) -> Result
     if model.arch.design != Design::MultiScale {
         return Err(err("a flat network has no firefly clamp".into()));
     }
+    with_metadata(bytes, origin, "kpcn:clamp", Some(clamp.name().into()))
+}
+
+/// The model file `bytes` with its specular branch bounded to `errors` standard errors of
+/// each pixel's mean ([`Architecture::specular_bound`]; `None` lifts the bound), every
+/// weight kept bit for bit.
+pub fn model_file_with_specular_bound(bytes: &[u8], errors: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
+    Model::from_bytes(bytes, origin)?;
+    with_metadata(bytes, origin, "kpcn:specular_bound", errors.map(|k| k.to_string()))
+}
+
+/// `bytes` with metadata `key` set to `value` (removed for `None`), tensors unchanged.
+fn with_metadata(bytes: &[u8], origin: &str, key: &str, value: Option<String>) -> Result<Vec<u8>, ModelError> {
+    let err = |what: String| ModelError::Format { origin: origin.into(), what };
     let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| err(e.to_string()))?;
     let mut meta = meta.metadata().clone().unwrap_or_default();
-    meta.insert("kpcn:clamp".into(), clamp.name().into());
+    match value {
+        Some(v) => meta.insert(key.into(), v),
+        None => meta.remove(key),
+    };
     let tensors = safetensors::SafeTensors::deserialize(bytes).map_err(|e| err(e.to_string()))?;
     safetensors::serialize(tensors.tensors(), Some(meta)).map_err(|e| err(e.to_string()))
 }

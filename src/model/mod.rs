@@ -18,7 +18,7 @@ pub mod stream;
 pub use architecture::{
     Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, Specular, Variances,
 };
-pub use format::{FORMAT_VERSION, model_file_with_clamp, write_atomically};
+pub use format::{FORMAT_VERSION, model_file_with_clamp, model_file_with_specular_bound, write_atomically};
 
 /// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
 /// buffer pool), checked with the model's weights when it loads.
@@ -165,6 +165,7 @@ mod tests {
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
+            specular_bound: None,
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -212,6 +213,7 @@ mod tests {
                 variances: Default::default(),
                 specular: Default::default(),
                 exposure: Default::default(),
+                specular_bound: None,
             },
             7,
         )
@@ -235,6 +237,25 @@ mod tests {
     }
 
     #[test]
+    fn a_specular_bound_is_written_read_lifted_and_checked() {
+        let m = Model::xavier(Architecture::ladder(Quality::Fast), 5).unwrap();
+        let bytes = m.to_bytes().unwrap();
+        let bounded = model_file_with_specular_bound(&bytes, Some(2), "mem").unwrap();
+        let b = Model::from_bytes(&bounded, "mem").unwrap();
+        assert_eq!(b.arch, Architecture { specular_bound: Some(2), ..m.arch });
+        let w = |m: &Model| m.specular.layers[0].0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert_eq!(w(&b), w(&m), "weights kept bit for bit");
+        let lifted = model_file_with_specular_bound(&bounded, None, "mem").unwrap();
+        assert_eq!(Model::from_bytes(&lifted, "mem").unwrap().arch, m.arch);
+        let mut meta = m.arch.metadata();
+        meta.insert("kpcn:specular_bound".into(), "two".into());
+        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+        let odd = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
+        let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
+        assert!(e.contains("odd.safetensors") && e.contains("`kpcn:specular_bound` is `two`"), "{e}");
+    }
+
+    #[test]
     fn every_rung_of_the_ladder_is_shipped_with_its_architecture() {
         for q in Quality::ALL {
             let m = Model::resolve(q.name()).unwrap();
@@ -243,7 +264,10 @@ mod tests {
             // Trained with the preset's clamp, shipped with the one chosen on our corpus
             // (`kpcn model clamp`; models/README.md).
             let clamp = if q == Quality::Balanced { Clamp::Significant } else { Clamp::FinePairsTwice };
-            assert_eq!(m.arch, Architecture { exposure, clamp, ..Architecture::ladder(q) }, "{}", q.name());
+            // `balanced`'s specular branch was retrained, and ships bounded (`kpcn model bound`).
+            let specular_bound = (q == Quality::Balanced).then_some(2);
+            let want = Architecture { exposure, clamp, specular_bound, ..Architecture::ladder(q) };
+            assert_eq!(m.arch, want, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }
     }

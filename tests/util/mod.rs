@@ -119,6 +119,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         variances: Default::default(),
         specular: Default::default(),
         exposure: Default::default(),
+        specular_bound: None,
     };
     Model::xavier(arch, seed).unwrap()
 }
