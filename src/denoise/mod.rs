@@ -478,9 +478,9 @@ fn recompose(
 /// does not show (a speck added after rendering) goes too.
 pub(crate) struct NoisySpecular {
     errors: f32,
-    /// Rows of s̃.
-    s_tilde: [Vec<f32>; 3],
-    /// Its variance.
+    /// Rows of the noisy radiance (of s̃).
+    noisy: [Vec<f32>; 3],
+    /// The variance of s̃.
     variance: Vec<f32>,
     /// The noisy radiance clamped to its neighbourhood's second-brightest, twice.
     clamped: [Vec<f32>; 3],
@@ -498,21 +498,21 @@ impl NoisySpecular {
         let (w, s) = (f.width, f.colour(Branch::Specular));
         let pixels = rows.start * w..rows.end * w;
         let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
-        let clamped = kernel::planes::Planes::from_vec(3, w, f.height, radiance)
-            .clamp_to_second_neighbour()
-            .clamp_to_second_neighbour();
+        let noisy = kernel::planes::Planes::from_vec(3, w, f.height, radiance);
+        let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
+        let rows_of = |p: &kernel::planes::Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
         Some(NoisySpecular {
             errors,
-            s_tilde: std::array::from_fn(|c| s[c][pixels.clone()].to_vec()),
+            noisy: rows_of(&noisy),
             variance: f.variance(Branch::Specular)[pixels.clone()].to_vec(),
-            clamped: std::array::from_fn(|c| clamped.plane(c)[pixels.clone()].to_vec()),
+            clamped: rows_of(&clamped),
         })
     }
 
     /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
     fn apply(&self, specular: &mut [Vec<f32>; 3]) {
         for (i, v) in self.variance.iter().enumerate() {
-            let noisy: [f32; 3] = std::array::from_fn(|c| specular_of_log(self.s_tilde[c][i]));
+            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
             // The features' delta method divided the variance by the mean of (1 + s)².
             let m = 1.0 + noisy.iter().map(|v| v.max(0.0)).sum::<f32>() / 3.0;
             let reach = self.errors * v.max(0.0).sqrt() * m;
@@ -537,7 +537,7 @@ mod tests {
         let m = |i: usize| 1.0 + noisy[i];
         NoisySpecular {
             errors: 2.0,
-            s_tilde: std::array::from_fn(|_| noisy.iter().map(|&v| crate::features::log_specular_of(v)).collect()),
+            noisy: std::array::from_fn(|_| noisy.to_vec()),
             variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
             clamped: std::array::from_fn(|_| clamped.to_vec()),
         }
