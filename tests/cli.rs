@@ -309,3 +309,22 @@ fn quality_names_a_rung_of_the_ladder_and_refuses_a_model_beside_it() {
     let o = kpcn(&["denoise", input.to_str().unwrap(), "-o", "x.exr", "--quality", "fast", "--model", "default"]);
     assert!(!o.status.success() && text(&o.stderr).contains("--quality"), "{}", text(&o.stderr));
 }
+
+#[test]
+fn model_bound_rewrites_the_specular_bound_and_info_shows_it() {
+    // The shipped `fast` is unbounded; bounded and lifted again, its weights and the rest
+    // of its architecture stay (`kpcn model info` prints the bound either way).
+    let dir = tempfile::tempdir().unwrap();
+    let bounded = dir.path().join("fast-bounded.safetensors");
+    let lifted = dir.path().join("fast-lifted.safetensors");
+    let out = kpcn(&["model", "bound", "fast", "--errors", "3", "-o", bounded.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let info = text(&kpcn(&["model", "info", bounded.to_str().unwrap()]).stdout);
+    assert!(info.contains("moved at most 3 standard errors"), "{info}");
+    let out = kpcn(&["model", "bound", bounded.to_str().unwrap(), "--errors", "0", "-o", lifted.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let info = text(&kpcn(&["model", "info", lifted.to_str().unwrap()]).stdout);
+    assert!(info.contains("specular      unbounded"), "{info}");
+    let out = kpcn(&["model", "bound", "no-such-model.safetensors", "--errors", "2", "-o", "x.safetensors"]);
+    assert!(!out.status.success() && text(&out.stderr).contains("no-such-model.safetensors: cannot read the model"));
+}
