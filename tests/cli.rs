@@ -312,8 +312,8 @@ fn quality_names_a_rung_of_the_ladder_and_refuses_a_model_beside_it() {
 
 #[test]
 fn model_bound_rewrites_the_specular_bound_and_info_shows_it() {
-    // The shipped `fast` is unbounded; bounded and lifted again, its weights and the rest
-    // of its architecture stay (`kpcn model info` prints the bound either way).
+    // The shipped `fast` is unbounded; bounded, then lifted again (`kpcn model info` prints
+    // the bound either way; `model::tests` checks that the weights stay bit for bit).
     let dir = tempfile::tempdir().unwrap();
     let bounded = dir.path().join("fast-bounded.safetensors");
     let lifted = dir.path().join("fast-lifted.safetensors");

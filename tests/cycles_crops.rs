@@ -37,8 +37,9 @@ const KNOWN_OUTLIERS: &[(&str, u32, usize)] = &[];
 /// 0.2627 / 2.0287 / 0.6942 and 0.0318 / 0.0365 / 0.0852 (clusters of caustic hits it
 /// takes), but still rise between two of the counts. With the retrained specular branch,
 /// bounded to two standard errors (2026-12-03, eighth session), from 0.2647 / 0.5157 /
-/// 0.3562 and 0.0319 / 0.0269 / 0.0755: the first falls at every count, the second's
-/// 64-spp frame rises 15 % (its textured metal keeps less detail).
+/// 0.3562 and 0.0319 / 0.0269 / 0.0755: the first is lower at every count (and rises by
+/// 13 % and 7 %), the second's 64-spp frame is 15 % higher (its textured metal keeps less
+/// detail).
 const KNOWN_GROWTH: &[(&str, [f64; 3])] =
     &[("cyc-00052-x40y8", [0.2378, 0.2680, 0.2872]), ("cyc-00052-x200y24", [0.0301, 0.0251, 0.0866])];
 
