@@ -41,6 +41,11 @@ fn auto_exposed(model: Model) -> Model {
     Model { arch: Architecture { exposure: Exposure::Auto, ..model.arch }, ..model }
 }
 
+/// `model` with its specular branch bounded to two standard errors.
+fn bounded(model: Model) -> Model {
+    Model { arch: Architecture { specular_bound: Some(2), ..model.arch }, ..model }
+}
+
 fn run(model: Model, k: &KpcnInputs, tile: Option<usize>, threads: usize) -> Denoised {
     let d = Denoiser::new(model, Options { threads: Some(threads), max_memory_mb: 64, tile_size: tile }).unwrap();
     d.denoise(k, &|_| true).unwrap()
@@ -130,12 +135,13 @@ proptest! {
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
         w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
-        clamp in 0usize..7, ladder in any::<bool>()
+        clamp in 0usize..7, ladder in any::<bool>(), bounded in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
         // the receptive radius as halo, cut at the frame's border radius) reproduce the
         // frame exactly; hostile inputs stay finite. Every firefly clamp; 2 levels, and the
-        // ladder's 5, whose regions are cut at the frame's edges.
+        // ladder's 5, whose regions are cut at the frame's edges; with and without the
+        // specular bound.
         let k = frame(w, h, seed, hostile);
         let model = || {
             let mut m = if ladder { tiny_multiscale_levels(4, 5) } else { tiny_ms() };
@@ -149,6 +155,9 @@ proptest! {
                 Clamp::FinePairsTwice,
                 Clamp::Significant,
             ][clamp];
+            if bounded {
+                m = self::bounded(m);
+            }
             m
         };
         let whole = run(model(), &k, Some(1024), 1);
@@ -543,9 +552,14 @@ fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
     fb.insert("depth.Z", SampleFormat::Float, depth).unwrap();
     let input = write(&fb, dir.path(), "in.exr");
     let k = Mapping::for_frame(&fb, None).extract(&fb).unwrap();
-    for model in
-        [tiny(Kind::Kpcn, 5), tiny(Kind::Dpcn, 5), tiny_ms(), tiny_multiscale_levels(4, 5), auto_exposed(tiny_ms())]
-    {
+    for model in [
+        tiny(Kind::Kpcn, 5),
+        tiny(Kind::Dpcn, 5),
+        tiny_ms(),
+        tiny_multiscale_levels(4, 5),
+        auto_exposed(tiny_ms()),
+        bounded(tiny_multiscale_levels(4, 5)),
+    ] {
         let whole = run(model.clone(), &k, Some(16), 2);
         // Multi-scale bands are rounded up to its pooling grid (4 rows).
         for band in [Some(1), Some(4), Some(7), None] {
