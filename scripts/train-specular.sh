@@ -29,8 +29,11 @@
 #      and `spatial`, with the firefly clamp (`kpcn model clamp`: significant for `balanced`,
 #      fine-pairs-twice for the others) and the specular branch bounded to 2 standard
 #      errors of each pixel's mean (`kpcn model bound`: without it the new branch spreads
-#      caustic fireflies into dark neighbours and blurs textures every sample saw),
-#      WORK/MODEL.safetensors; copy it to models/MODEL.safetensors (`balanced` ships so).
+#      caustic fireflies into dark neighbours and blurs textures every sample saw), and for
+#      `balanced` the diffuse branch's ceiling, 2 standard errors past its similar
+#      neighbours' noisy mean (`kpcn model bound --branch diffuse`: light no longer bleeds
+#      across edges), WORK/MODEL.safetensors; copy it to models/MODEL.safetensors
+#      (`balanced` ships so).
 # Score it against MODEL on the held-out scenes with
 #   benches/quality_corpus.sh WORK/MODEL/data MODEL WORK/MODEL.safetensors
 set -euo pipefail
@@ -68,5 +71,9 @@ esac
 clamp=fine-pairs-twice
 [ "$model" = balanced ] && clamp=significant
 "$kpcn" model clamp "$work/$model.safetensors" --clamp "$clamp" -o "$work/$model.safetensors"
-"$kpcn" model bound "$work/$model.safetensors" --errors 2 -o "$work/$model.safetensors"
+"$kpcn" model bound "$work/$model.safetensors" --branch specular --errors 2 -o "$work/$model.safetensors"
+# `balanced` also ships with its diffuse branch's ceiling (kept off the other models: not
+# measured on them).
+[ "$model" = balanced ] &&
+    "$kpcn" model bound "$work/$model.safetensors" --branch diffuse --errors 2 -o "$work/$model.safetensors"
 echo "$work/$model.safetensors"

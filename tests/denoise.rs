@@ -26,6 +26,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             specular: Default::default(),
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         },
         3,
     )
@@ -41,9 +42,9 @@ fn auto_exposed(model: Model) -> Model {
     Model { arch: Architecture { exposure: Exposure::Auto, ..model.arch }, ..model }
 }
 
-/// `model` with its specular branch bounded to two standard errors.
+/// `model` with both branches bounded by two standard errors.
 fn bounded(model: Model) -> Model {
-    Model { arch: Architecture { specular_bound: Some(2), ..model.arch }, ..model }
+    Model { arch: Architecture { specular_bound: Some(2), diffuse_bound: Some(2), ..model.arch }, ..model }
 }
 
 fn run(model: Model, k: &KpcnInputs, tile: Option<usize>, threads: usize) -> Denoised {

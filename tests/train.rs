@@ -76,6 +76,7 @@ fn tiny() -> Model {
             specular: Default::default(),
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         },
         1,
     )

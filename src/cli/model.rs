@@ -2,8 +2,9 @@
 
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
+use kpcn::features::Branch;
 use kpcn::model::{
-    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_clamp, model_file_with_specular_bound, registry,
+    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_bound, model_file_with_clamp, registry,
     write_atomically,
 };
 use std::path::PathBuf;
@@ -53,15 +54,21 @@ pub enum ModelAction {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Rewrite a model with its specular branch bounded: an inference-time choice, so every
-    /// weight is kept bit for bit (the default's last build step)
+    /// Rewrite a model with one branch bounded: an inference-time choice, so every weight is
+    /// kept bit for bit (the default's last build steps)
     Bound {
         /// Model name or file.
         model: String,
-        /// The most the specular branch may move a pixel from its noisy value, in standard
-        /// errors of that pixel's mean (from its variance): a firefly, whose error is about
-        /// its value, still goes, while a dark pixel beside it cannot take its energy and
-        /// a texture every sample saw keeps its detail. 0 lifts the bound.
+        /// The branch to bound.
+        #[arg(long, value_enum)]
+        branch: Branch,
+        /// The bound, in standard errors of a pixel's mean (from the variances). Specular:
+        /// the most the branch moves a pixel from its noisy value, so a firefly, whose error
+        /// is about its value, still goes, while a dark pixel beside it cannot take its
+        /// energy and a texture every sample saw keeps its detail. Diffuse: the most the
+        /// branch brightens a pixel beyond the mean noisy value of its similar neighbours
+        /// (albedo, normal and noisy value alike, within 3 pixels), so light does not bleed
+        /// across an edge into the dark side. 0 lifts the bound.
         #[arg(long, value_name = "ERRORS")]
         errors: u8,
         /// Output file (.safetensors).
@@ -164,6 +171,12 @@ pub fn describe(m: &Model) {
                 Some(k) => println!("  specular      moved at most {k} standard errors of each pixel's mean"),
                 None => println!("  specular      unbounded (as far as its kernels take it)"),
             }
+            match a.diffuse_bound {
+                Some(k) => println!(
+                    "  diffuse       brightened at most {k} standard errors past its similar neighbours' noisy mean"
+                ),
+                None => println!("  diffuse       unbounded (as far as its kernels take it)"),
+            }
         }
     }
     let variances = match a.variances {
@@ -203,9 +216,9 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());
         }
-        ModelAction::Bound { model, errors, output } => {
-            let rewritten =
-                model_file_with_specular_bound(&model_bytes(model)?, Some(*errors).filter(|&k| k > 0), model)?;
+        ModelAction::Bound { model, branch, errors, output } => {
+            let errors = Some(*errors).filter(|&k| k > 0);
+            let rewritten = model_file_with_bound(&model_bytes(model)?, *branch, errors, model)?;
             write_atomically(output, &rewritten)
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());

@@ -5,7 +5,7 @@
 //! threads (`&self`); the work runs in the denoiser's own rayon pool, so a host
 //! application's pool is left alone.
 
-use crate::features::{Branch, EPSILON, Features, FrameStats, INPUT_CHANNELS, sanitize, specular_of_log};
+use crate::features::{Branch, EPSILON, Features, FrameStats, INPUT_CHANNELS, sanitize};
 use crate::io::layout::{KpcnInputs, Remainder};
 use crate::kernel;
 use crate::model::{Design, Exposure, Kind, Model, ModelError, Specular};
@@ -14,12 +14,14 @@ use candle_core::{Device, Tensor};
 use std::borrow::Cow;
 
 mod bands;
+mod bounds;
 mod choice;
 mod file;
 mod request;
 mod stream;
 
 pub use bands::Bands;
+use bounds::Bounds;
 pub use choice::Denoisers;
 pub use file::{FileError, FileJob, FileOptions, FileReport, Stages, check_output};
 pub use request::{FileRequest, Note, Outcome, ViewLayers};
@@ -371,16 +373,18 @@ impl Denoiser {
             }
         }
         let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
-        let bound = NoisySpecular::of(&self.model.arch, f, y0..y0 + h);
-        Ok(recompose(&albedo, &d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, bound.as_ref()))
+        let bounds = self.pool.install(|| Bounds::of(&self.model.arch, f, y0..y0 + h));
+        Ok(recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds))
     }
 
     /// Context rows each band of a streamed `width`-wide frame is read with: where the
     /// network runs down the whole frame ([`Denoiser::streams`]), only its features'
-    /// context ([`crate::features::CONTEXT`]); else the model's reach
-    /// ([`crate::model::Architecture::reach`]).
+    /// context ([`crate::features::CONTEXT`]) and what its bounds read beyond a band
+    /// (`Bounds::context`); else the model's reach
+    /// ([`crate::model::Architecture::reach`]), or that if it is more.
     pub fn halo(&self, width: usize) -> usize {
-        if self.streams(width) { crate::features::CONTEXT } else { self.model.arch.reach() }
+        let bounds = crate::features::CONTEXT + Bounds::context(&self.model.arch);
+        if self.streams(width) { bounds } else { self.model.arch.reach().max(bounds) }
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.
@@ -444,138 +448,30 @@ impl Denoiser {
 /// Branches a tile evaluates at once: both, side by side ([`Denoiser::denoise_rows`]).
 const BRANCHES_AT_ONCE: usize = 2;
 
-/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), both
-/// divided by the inputs' `exposure`, and their sum, all finite.
+/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), each
+/// within its branch's bound, both divided by the inputs' `exposure`, and their sum, all
+/// finite.
 fn recompose(
     albedo: &[Vec<f32>; 3],
-    d_hat: &[Vec<f32>; 3],
+    mut d_hat: [Vec<f32>; 3],
     s_hat: &[Vec<f32>; 3],
     (w, h): (usize, usize),
     domain: Specular,
     exposure: f32,
-    bound: Option<&NoisySpecular>,
+    bounds: &Bounds,
 ) -> Denoised {
+    if let Some(b) = &bounds.diffuse {
+        b.apply(&mut d_hat);
+    }
     // Division by exactly 1 changes nothing, so raw models keep their images bit for bit.
     let diffuse: [Vec<f32>; 3] = std::array::from_fn(|c| {
         d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize(sanitize((a + EPSILON) * d) / exposure)).collect()
     });
     let mut specular: [Vec<f32>; 3] = std::array::from_fn(|c| s_hat[c].iter().map(|&s| domain.radiance(s)).collect());
-    if let Some(b) = bound {
+    if let Some(b) = &bounds.specular {
         b.apply(&mut specular);
     }
     specular.iter_mut().for_each(|p| p.iter_mut().for_each(|s| *s = sanitize(*s / exposure)));
     let color = std::array::from_fn(|c| diffuse[c].iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
     Denoised { width: w, height: h, color, diffuse, specular }
-}
-
-/// What bounds how far the specular branch moves each pixel of a band from its noisy value
-/// ([`crate::model::Architecture::specular_bound`]): `errors` standard errors of the
-/// pixel's mean, from the features (s̃ and its delta-method variance, in the exposed
-/// radiance the network sees). A firefly, whose error is about its value, can go; a dark
-/// pixel beside it, which no sample of that light reached, cannot take its energy; a
-/// texture every sample saw keeps its detail. A value may always come down to the
-/// `fine-pairs-twice` clamp of its neighbourhood, so that an outlier the file's variance
-/// does not show (a speck added after rendering) goes too.
-pub(crate) struct NoisySpecular {
-    errors: f32,
-    /// Rows of the noisy radiance (of s̃).
-    noisy: [Vec<f32>; 3],
-    /// The variance of s̃.
-    variance: Vec<f32>,
-    /// The noisy radiance clamped to its neighbourhood's second-brightest, twice.
-    clamped: [Vec<f32>; 3],
-}
-
-impl NoisySpecular {
-    /// The bound of `arch`, if it has one, over rows `rows` of the region `f` holds (whose
-    /// rows beyond them, 2 at least where the frame goes on, are the clamp's context).
-    pub(crate) fn of(
-        arch: &crate::model::Architecture,
-        f: &Features,
-        rows: std::ops::Range<usize>,
-    ) -> Option<NoisySpecular> {
-        let errors = arch.specular_bound? as f32;
-        let (w, s) = (f.width, f.colour(Branch::Specular));
-        let pixels = rows.start * w..rows.end * w;
-        let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
-        let noisy = kernel::planes::Planes::from_vec(3, w, f.height, radiance);
-        let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
-        let rows_of = |p: &kernel::planes::Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
-        Some(NoisySpecular {
-            errors,
-            noisy: rows_of(&noisy),
-            variance: f.variance(Branch::Specular)[pixels.clone()].to_vec(),
-            clamped: rows_of(&clamped),
-        })
-    }
-
-    /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
-    fn apply(&self, specular: &mut [Vec<f32>; 3]) {
-        for (i, v) in self.variance.iter().enumerate() {
-            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
-            // The features' delta method divided the variance by the mean of (1 + s)².
-            let m = 1.0 + noisy.iter().map(|v| v.max(0.0)).sum::<f32>() / 3.0;
-            let reach = self.errors * v.max(0.0).sqrt() * m;
-            for (c, n) in noisy.into_iter().enumerate() {
-                let down = reach.max(n - self.clamped[c][i]);
-                // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile input).
-                let out = &mut specular[c][i];
-                *out = n + (*out - n).max(-down).min(reach);
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A bound of 2 errors over pixels of noisy radiance `noisy`, standard error `error`
-    /// and clamped value `clamped` (one value for all three channels).
-    fn bound(noisy: &[f32], error: &[f32], clamped: &[f32]) -> NoisySpecular {
-        let n = noisy.len();
-        let m = |i: usize| 1.0 + noisy[i];
-        NoisySpecular {
-            errors: 2.0,
-            noisy: std::array::from_fn(|_| noisy.to_vec()),
-            variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
-            clamped: std::array::from_fn(|_| clamped.to_vec()),
-        }
-    }
-
-    #[test]
-    fn the_specular_branch_moves_a_pixel_at_most_two_of_its_errors_but_outliers_go() {
-        // 0: a dark pixel that no sample of a light reached takes no light from its
-        //    neighbour (error 0.01: up to 0.02 more);
-        // 1: a firefly whose error is its size goes;
-        // 2: a speck the variance does not show still goes down to its clamped value;
-        // 3: a texture pixel every sample saw keeps its detail (moved 0.1 of its 0.5 asked);
-        // 4: a move within the bound is kept as it is.
-        let b = bound(&[0.05, 80.0, 500.0, 1.0, 1.0], &[0.01, 80.0, 0.1, 0.05, 0.5], &[0.05, 0.3, 0.2, 1.0, 1.0]);
-        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![2.0, 0.5, 0.2, 0.5, 1.6]);
-        b.apply(&mut out);
-        let want = [0.07, 0.5, 0.2, 0.9, 1.6];
-        for (o, w) in out[0].iter().zip(want) {
-            assert!((o - w).abs() < 1e-3 * w.max(1.0), "{:?} against {want:?}", out[0]);
-        }
-        assert_eq!(out[0], out[2]);
-    }
-
-    #[test]
-    fn a_bound_on_hostile_values_never_panics_and_stays_finite() {
-        let mut b = bound(&[1.0, 0.0, 3e38], &[f32::NAN, f32::INFINITY, 3e38], &[1.0, 0.0, 3e38]);
-        b.variance[0] = f32::NAN;
-        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![f32::NAN, 5.0, 1.0]);
-        b.apply(&mut out);
-        let d = recompose(
-            &std::array::from_fn(|_| vec![0.5; 3]),
-            &std::array::from_fn(|_| vec![0.1; 3]),
-            &std::array::from_fn(|_| vec![f32::NAN, 90.0, -1.0]),
-            (3, 1),
-            Specular::Log,
-            1.0,
-            Some(&b),
-        );
-        assert!(d.color.iter().flatten().all(|v| v.is_finite()), "{:?}", d.color);
-    }
 }

@@ -4,7 +4,7 @@
 //! evaluated twice, so bands need only the few context rows their features need
 //! ([`crate::features::CONTEXT`]), and the result is the whole frame's bit for bit.
 
-use super::{Denoised, Denoiser, NoisySpecular, recompose};
+use super::{Bounds, Denoised, Denoiser, recompose};
 use crate::features::{Branch, Features, INPUT_CHANNELS};
 use crate::io::layout::Remainder;
 use crate::kernel::planes::Planes;
@@ -78,8 +78,9 @@ impl<'a> FrameStream<'a> {
         let end = if band.end == self.height { rh } else { (band.end as isize - y0) as usize };
         let albedo =
             std::array::from_fn(|c| f.albedo[c][(band.start - f_start) * w..(band.end - f_start) * w].to_vec());
-        let noisy_specular = NoisySpecular::of(&self.denoiser.model.arch, f, band.start - f_start..band.end - f_start);
-        self.pending.push_back(Pending { rows: band, albedo, remainder, noisy_specular });
+        let rows = band.start - f_start..band.end - f_start;
+        let bounds = self.denoiser.pool.install(|| Bounds::of(&self.denoiser.model.arch, f, rows));
+        self.pending.push_back(Pending { rows: band, albedo, remainder, bounds });
         self.exposure = f.exposure;
         let (arch, height) = (&self.denoiser.model.arch, self.height);
         while self.pushed < end {
@@ -106,13 +107,12 @@ impl<'a> FrameStream<'a> {
         if first + rows < self.pending.front()?.rows.end {
             return None;
         }
-        let Pending { rows: band, albedo, remainder, noisy_specular } = self.pending.pop_front()?;
+        let Pending { rows: band, albedo, remainder, bounds } = self.pending.pop_front()?;
         let n = band.len() * self.width;
         let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
         let (d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
         let domain = self.denoiser.model.arch.specular;
-        let (size, bound) = ((self.width, band.len()), noisy_specular.as_ref());
-        let mut d = recompose(&albedo, &d_hat, &s_hat, size, domain, self.exposure, bound);
+        let mut d = recompose(&albedo, d_hat, &s_hat, (self.width, band.len()), domain, self.exposure, &bounds);
         d.carry(&remainder);
         Some((band, d))
     }
@@ -123,8 +123,8 @@ struct Pending {
     rows: Range<usize>,
     albedo: [Vec<f32>; 3],
     remainder: Remainder,
-    /// What bounds the specular branch, where the model does.
-    noisy_specular: Option<NoisySpecular>,
+    /// What bounds the branches, where the model does.
+    bounds: Bounds,
 }
 
 /// Where a stream's region lies and what of its output is kept: the region's first column

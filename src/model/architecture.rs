@@ -54,6 +54,10 @@ pub struct Architecture {
     /// The most the specular branch moves a pixel from its noisy value, in standard errors
     /// of that pixel's mean (`kpcn:specular_bound`); `None`: as far as its kernels take it.
     pub specular_bound: Option<u8>,
+    /// The most the diffuse branch brightens a pixel: to the mean noisy value of its
+    /// similar neighbours plus this many standard errors of a pixel's mean there
+    /// (`kpcn:diffuse_bound`); `None`: as far as its kernels take it.
+    pub diffuse_bound: Option<u8>,
 }
 
 /// How a model's radiance inputs are scaled (`kpcn:exposure`). Convolutions with biases
@@ -290,6 +294,7 @@ impl Architecture {
             specular: Default::default(),
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         }
     }
 
@@ -307,6 +312,7 @@ impl Architecture {
             specular: Default::default(),
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         }
     }
 
@@ -326,6 +332,7 @@ impl Architecture {
             specular: Specular::Log,
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         }
     }
 

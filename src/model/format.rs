@@ -2,7 +2,7 @@
 //! its metadata (`kpcn:*` keys), read and written atomically.
 
 use super::{Architecture, BranchWeights, Clamp, Design, Exposure, Kind, Model, ModelError, Specular, Variances};
-use crate::features::INPUT_LAYOUT;
+use crate::features::{Branch, INPUT_LAYOUT};
 use candle_core::{DType, Device, Tensor};
 use std::collections::HashMap;
 use std::path::Path;
@@ -30,7 +30,8 @@ impl Architecture {
             ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
         ]
         .into_iter()
-        .chain(self.specular_bound.map(|k| ("kpcn:specular_bound", k.to_string())))
+        .chain(self.specular_bound.map(|k| (bound_key(Branch::Specular), k.to_string())))
+        .chain(self.diffuse_bound.map(|k| (bound_key(Branch::Diffuse), k.to_string())))
         .map(|(k, v)| (k.to_string(), v))
         .collect()
     }
@@ -38,6 +39,15 @@ impl Architecture {
     fn from_metadata(m: &HashMap<String, String>, origin: &str) -> Result<Self, ModelError> {
         let err = |what: String| ModelError::Format { origin: origin.into(), what };
         let get = |k: &str| m.get(k).ok_or_else(|| err(format!("metadata lacks `{k}` (not a kpcn model file?)")));
+        let bound = |b: Branch| match m.get(bound_key(b)) {
+            None => Ok(None),
+            Some(k) => k.parse().ok().filter(|&k| k > 0).map(Some).ok_or_else(|| {
+                err(format!(
+                    "metadata `{}` is `{k}`, not a whole number of standard errors from 1 to 255",
+                    bound_key(b)
+                ))
+            }),
+        };
         let version = get("kpcn:format")?;
         if version != FORMAT_VERSION {
             return Err(err(format!("model format {version}, this kpcn reads format {FORMAT_VERSION}")));
@@ -96,15 +106,9 @@ impl Architecture {
                 Some("auto") => Exposure::Auto,
                 Some(other) => return Err(err(format!("unknown exposure `{other}`"))),
             },
-            // Files from before the choice leave the specular branch unbounded.
-            specular_bound: match m.get("kpcn:specular_bound") {
-                None => None,
-                Some(k) => Some(k.parse().ok().filter(|&k| k > 0).ok_or_else(|| {
-                    err(format!(
-                        "metadata `kpcn:specular_bound` is `{k}`, not a whole number of standard errors from 1 to 255"
-                    ))
-                })?),
-            },
+            // Files from before the choice leave the branches unbounded.
+            specular_bound: bound(Branch::Specular)?,
+            diffuse_bound: bound(Branch::Diffuse)?,
         };
         a.validate(origin)?;
         Ok(a)
@@ -217,12 +221,20 @@ pub fn model_file_with_clamp(bytes: &[u8], clamp: Clamp, origin: &str) -> Result
     with_metadata(bytes, origin, "kpcn:clamp", Some(clamp.name().into()))
 }
 
-/// The model file `bytes` with its specular branch bounded to `errors` standard errors of
-/// each pixel's mean ([`Architecture::specular_bound`]; `None` lifts the bound), every
-/// weight kept bit for bit.
-pub fn model_file_with_specular_bound(bytes: &[u8], errors: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
+/// The metadata key of a branch's bound.
+fn bound_key(b: Branch) -> &'static str {
+    match b {
+        Branch::Diffuse => "kpcn:diffuse_bound",
+        Branch::Specular => "kpcn:specular_bound",
+    }
+}
+
+/// The model file `bytes` with branch `b` bounded by `errors` standard errors
+/// ([`Architecture::specular_bound`], [`Architecture::diffuse_bound`]; `None` lifts the
+/// bound), every weight kept bit for bit.
+pub fn model_file_with_bound(bytes: &[u8], b: Branch, errors: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
     Model::from_bytes(bytes, origin)?;
-    with_metadata(bytes, origin, "kpcn:specular_bound", errors.map(|k| k.to_string()))
+    with_metadata(bytes, origin, bound_key(b), errors.map(|k| k.to_string()))
 }
 
 /// `bytes` with metadata `key` set to `value` (removed for `None`), tensors unchanged.

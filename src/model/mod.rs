@@ -18,7 +18,7 @@ pub mod stream;
 pub use architecture::{
     Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, Specular, Variances,
 };
-pub use format::{FORMAT_VERSION, model_file_with_clamp, model_file_with_specular_bound, write_atomically};
+pub use format::{FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, write_atomically};
 
 /// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
 /// buffer pool), checked with the model's weights when it loads.
@@ -126,6 +126,7 @@ impl Model {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::features::Branch;
     use std::path::Path;
 
     #[test]
@@ -166,6 +167,7 @@ mod tests {
             specular: Default::default(),
             exposure: Default::default(),
             specular_bound: None,
+            diffuse_bound: None,
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -214,6 +216,7 @@ mod tests {
                 specular: Default::default(),
                 exposure: Default::default(),
                 specular_bound: None,
+                diffuse_bound: None,
             },
             7,
         )
@@ -237,22 +240,26 @@ mod tests {
     }
 
     #[test]
-    fn a_specular_bound_is_written_read_lifted_and_checked() {
+    fn bounds_are_written_read_lifted_and_checked() {
         let m = Model::xavier(Architecture::ladder(Quality::Fast), 5).unwrap();
         let bytes = m.to_bytes().unwrap();
-        let bounded = model_file_with_specular_bound(&bytes, Some(2), "mem").unwrap();
+        let bounded = model_file_with_bound(&bytes, Branch::Specular, Some(2), "mem").unwrap();
+        let bounded = model_file_with_bound(&bounded, Branch::Diffuse, Some(3), "mem").unwrap();
         let b = Model::from_bytes(&bounded, "mem").unwrap();
-        assert_eq!(b.arch, Architecture { specular_bound: Some(2), ..m.arch });
+        assert_eq!(b.arch, Architecture { specular_bound: Some(2), diffuse_bound: Some(3), ..m.arch });
         let w = |m: &Model| m.specular.layers[0].0.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert_eq!(w(&b), w(&m), "weights kept bit for bit");
-        let lifted = model_file_with_specular_bound(&bounded, None, "mem").unwrap();
+        let lifted = model_file_with_bound(&bounded, Branch::Specular, None, "mem").unwrap();
+        let lifted = model_file_with_bound(&lifted, Branch::Diffuse, None, "mem").unwrap();
         assert_eq!(Model::from_bytes(&lifted, "mem").unwrap().arch, m.arch);
-        let mut meta = m.arch.metadata();
-        meta.insert("kpcn:specular_bound".into(), "two".into());
-        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
-        let odd = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
-        let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
-        assert!(e.contains("odd.safetensors") && e.contains("`kpcn:specular_bound` is `two`"), "{e}");
+        for key in ["kpcn:specular_bound", "kpcn:diffuse_bound"] {
+            let mut meta = m.arch.metadata();
+            meta.insert(key.into(), "two".into());
+            let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+            let odd = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
+            let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
+            assert!(e.contains("odd.safetensors") && e.contains(&format!("`{key}` is `two`")), "{e}");
+        }
     }
 
     #[test]
@@ -264,9 +271,11 @@ mod tests {
             // Trained with the preset's clamp, shipped with the one chosen on our corpus
             // (`kpcn model clamp`; models/README.md).
             let clamp = if q == Quality::Balanced { Clamp::Significant } else { Clamp::FinePairsTwice };
-            // `balanced`'s specular branch was retrained, and ships bounded (`kpcn model bound`).
-            let specular_bound = (q == Quality::Balanced).then_some(2);
-            let want = Architecture { exposure, clamp, specular_bound, ..Architecture::ladder(q) };
+            // `balanced`'s specular branch was retrained, and ships bounded, its diffuse branch
+            // under a ceiling (`kpcn model bound`).
+            let (specular_bound, diffuse_bound) =
+                ((q == Quality::Balanced).then_some(2), (q == Quality::Balanced).then_some(2));
+            let want = Architecture { exposure, clamp, specular_bound, diffuse_bound, ..Architecture::ladder(q) };
             assert_eq!(m.arch, want, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }

@@ -120,6 +120,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         specular: Default::default(),
         exposure: Default::default(),
         specular_bound: None,
+        diffuse_bound: None,
     };
     Model::xavier(arch, seed).unwrap()
 }

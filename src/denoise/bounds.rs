@@ -1,0 +1,400 @@
+//! How far each branch may move a pixel from what the noisy frame shows, applied when the
+//! branches are recomposed ([`super::recompose`]): the specular branch by the pixel's own
+//! standard error ([`NoisySpecular`]), the diffuse branch by its similar neighbours'
+//! ([`DiffuseCeiling`]). Both are computed from the features of a band's rows, so the
+//! streamed, tiled and whole-frame paths bound alike.
+
+use crate::features::{Branch, Features, specular_of_log};
+use crate::kernel;
+use crate::model::Architecture;
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// The bounds of a model over rows of a band ([`Architecture::specular_bound`],
+/// [`Architecture::diffuse_bound`]); each `None` where the model has none.
+#[derive(Default)]
+pub(crate) struct Bounds {
+    pub(crate) specular: Option<NoisySpecular>,
+    pub(crate) diffuse: Option<DiffuseCeiling>,
+}
+
+impl Bounds {
+    /// The bounds of `arch` over rows `rows` of the region `f` holds, whose rows beyond
+    /// them are context: [`Bounds::context`] at least where the frame goes on.
+    pub(crate) fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Bounds {
+        Bounds { specular: NoisySpecular::of(arch, f, rows.clone()), diffuse: DiffuseCeiling::of(arch, f, rows) }
+    }
+
+    /// Rows of features beyond a band's that its bounds read, beyond those its features
+    /// themselves need ([`crate::features::CONTEXT`]).
+    pub(crate) fn context(arch: &Architecture) -> usize {
+        if arch.diffuse_bound.is_some() { CEILING_RADIUS } else { 0 }
+    }
+}
+
+/// What bounds how far the specular branch moves each pixel of a band from its noisy value
+/// ([`crate::model::Architecture::specular_bound`]): `errors` standard errors of the
+/// pixel's mean, from the features (s̃ and its delta-method variance, in the exposed
+/// radiance the network sees). A firefly, whose error is about its value, can go; a dark
+/// pixel beside it, which no sample of that light reached, cannot take its energy; a
+/// texture every sample saw keeps its detail. A value may always come down to the
+/// `fine-pairs-twice` clamp of its neighbourhood, so that an outlier the file's variance
+/// does not show (a speck added after rendering) goes too.
+pub(crate) struct NoisySpecular {
+    errors: f32,
+    /// Rows of the noisy radiance (of s̃).
+    noisy: [Vec<f32>; 3],
+    /// The variance of s̃.
+    variance: Vec<f32>,
+    /// The noisy radiance clamped to its neighbourhood's second-brightest, twice.
+    clamped: [Vec<f32>; 3],
+}
+
+impl NoisySpecular {
+    /// The bound of `arch`, if it has one, over rows `rows` of the region `f` holds (whose
+    /// rows beyond them, 2 at least where the frame goes on, are the clamp's context).
+    fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<NoisySpecular> {
+        let errors = arch.specular_bound? as f32;
+        let (w, s) = (f.width, f.colour(Branch::Specular));
+        let pixels = rows.start * w..rows.end * w;
+        let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
+        let noisy = kernel::planes::Planes::from_vec(3, w, f.height, radiance);
+        let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
+        let rows_of = |p: &kernel::planes::Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
+        Some(NoisySpecular {
+            errors,
+            noisy: rows_of(&noisy),
+            variance: f.variance(Branch::Specular)[pixels.clone()].to_vec(),
+            clamped: rows_of(&clamped),
+        })
+    }
+
+    /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
+    pub(crate) fn apply(&self, specular: &mut [Vec<f32>; 3]) {
+        for (i, v) in self.variance.iter().enumerate() {
+            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
+            // The features' delta method divided the variance by the mean of (1 + s)².
+            let m = 1.0 + noisy.iter().map(|v| v.max(0.0)).sum::<f32>() / 3.0;
+            let reach = self.errors * v.max(0.0).sqrt() * m;
+            for (c, n) in noisy.into_iter().enumerate() {
+                let down = reach.max(n - self.clamped[c][i]);
+                // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile input).
+                let out = &mut specular[c][i];
+                *out = n + (*out - n).max(-down).min(reach);
+            }
+        }
+    }
+}
+
+/// Half the side of the window a pixel's similar neighbours are sought in (7×7).
+pub(crate) const CEILING_RADIUS: usize = 3;
+/// Similar neighbours' albedos differ by at most this in every channel,
+const SIMILAR_ALBEDO: f32 = 0.1;
+/// their normals are at most this far apart,
+const SIMILAR_NORMAL: f32 = 0.6;
+/// and their noisy values (d̃, mean of the channels) differ by at most this many
+/// standard errors of the difference.
+const SIMILAR_ERRORS: f32 = 2.0;
+/// A ceiling only where at least this share of the window's pixels saw light: where
+/// fewer did, the light is sparse (a room lit through a slit, at a few samples) and the
+/// window's samples say too little of how bright it is.
+const LIT_SHARE: f32 = 0.5;
+
+/// The most the diffuse branch may make each pixel of a band
+/// ([`crate::model::Architecture::diffuse_bound`]): the mean noisy value (d̃, per channel)
+/// of its similar neighbours in a 7×7 window, plus `errors` standard errors of a pixel's
+/// mean there (from the mean of their variances). Similar: albedo and normal alike, and
+/// a noisy value within 2 standard errors of the pixel's; the pixel is always its own.
+/// None where fewer than half the window's pixels saw light.
+///
+/// Kernels that reach across an edge carry light from the bright side into the dark one,
+/// a band of pixels a few times brighter than the surface they sit on: the dark side's
+/// own samples say it is not so, and the bright side is not similar, so the ceiling
+/// stops it. Where a surface is uniformly noisy (few samples, most of them dark) the
+/// variances are large and the ceiling lets the kernels fill it. Only brightening is
+/// bounded: dimming a pixel moves energy out of it, which a relative error forgives far
+/// more than energy put into a dark pixel.
+pub(crate) struct DiffuseCeiling {
+    /// Per row: the ceiling of each channel, `[c][x]`.
+    ceiling: Vec<f32>,
+    width: usize,
+}
+
+impl DiffuseCeiling {
+    /// The ceiling of `arch`, if it has one, over rows `rows` of the region `f` holds
+    /// (whose rows beyond them, [`CEILING_RADIUS`] at least where the frame goes on, are
+    /// the window's context; the window stops at the region's edges).
+    fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<DiffuseCeiling> {
+        let errors = arch.diffuse_bound? as f32;
+        let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+        let (d, var, albedo, normal) = (&f.d_tilde, &f.d_variance, &f.albedo, &f.normal);
+        let mean: Vec<f32> = (0..w * h).into_par_iter().map(|i| (d[0][i] + d[1][i] + d[2][i]) / 3.0).collect();
+        let planes: [&[f32]; 11] =
+            [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
+        let mut ceiling = vec![0f32; 3 * w * rows.len()];
+        ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
+            // Sums over the window, one offset at a time along the whole row (so that the
+            // loop vectorises), each pixel's in the window's order: count of similar
+            // neighbours, their variances and d̃, the window's pixels and lit pixels.
+            let mut acc = [(); 7].map(|_| vec![0f32; w]);
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for dx in -(r as isize)..=r as isize {
+                    let (x0, x1) = ((-dx).max(0) as usize, (w as isize - dx.max(0)).max(0) as usize);
+                    if x1 > x0 {
+                        let (j0, j1) = ((x0 as isize + dx) as usize, (x1 as isize + dx) as usize);
+                        let here = planes.map(|p| &p[y * w..][x0..x1]);
+                        let there = planes.map(|p| &p[yy * w..][j0..j1]);
+                        window_sums(&here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
+                    }
+                }
+            }
+            let [count, variance, s0, s1, s2, pixels, lit] = &acc;
+            for x in 0..w {
+                // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
+                let count = count[x].max(1.0);
+                let reach = errors * (variance[x] / count).max(0.0).sqrt();
+                let sparse = lit[x] < LIT_SHARE * pixels[x];
+                for (c, sum) in [s0, s1, s2].into_iter().enumerate() {
+                    out[c * w + x] = if sparse { f32::INFINITY } else { sum[x] / count + reach };
+                }
+            }
+        });
+        Some(DiffuseCeiling { ceiling, width: w })
+    }
+
+    /// Bounds `d_hat` (the branch's output d̂, exposed, these rows) in place.
+    pub(crate) fn apply(&self, d_hat: &mut [Vec<f32>; 3]) {
+        let w = self.width;
+        for (c, plane) in d_hat.iter_mut().enumerate() {
+            for (i, v) in plane.iter_mut().enumerate() {
+                // `min` keeps the ceiling where the output is NaN (hostile input).
+                *v = v.min(self.ceiling[(i / w) * 3 * w + c * w + i % w]);
+            }
+        }
+    }
+}
+
+/// Adds, for each pixel of `here` (planes: mean d̃, its variance, d̃ RGB, albedo RGB,
+/// normal XYZ), what its neighbour at the same place in `there` brings to [`DiffuseCeiling`]'s
+/// sums `acc` (see there). Branch-free, so that it vectorises.
+fn window_sums(here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; 7]) {
+    let n = here[0].len();
+    let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
+    let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
+    let [count, variance, s0, s1, s2, pixels, lit] = acc.each_mut().map(|a| &mut a[..n]);
+    let add = add_similar_avx2_or_not();
+    add(
+        [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
+        mj,
+        vj,
+        [d0, d1, d2],
+        [a0j, a1j, a2j],
+        [n0j, n1j, n2j],
+        count,
+        variance,
+        [s0, s1, s2],
+    );
+    for (k, p) in pixels.iter_mut().enumerate() {
+        *p += 1.0;
+        lit[k] += if mj[k] != 0.0 { 1.0 } else { 0.0 };
+    }
+}
+
+/// The similarity test and sums of [`window_sums`]: AVX2 where the CPU has it (twice as
+/// many lanes), else as compiled.
+type AddSimilar =
+    fn([&[f32]; 8], &[f32], &[f32], [&[f32]; 3], [&[f32]; 3], [&[f32]; 3], &mut [f32], &mut [f32], [&mut [f32]; 3]);
+
+fn add_similar_avx2_or_not() -> AddSimilar {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        return |a, b, c, d, e, f, g, h, i| {
+            // SAFETY: AVX2 and FMA are available (detected).
+            unsafe { add_similar_avx2(a, b, c, d, e, f, g, h, i) }
+        };
+    }
+    add_similar
+}
+
+/// [`add_similar`] compiled for AVX2.
+///
+/// # Safety
+/// AVX2 and FMA are available.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn add_similar_avx2(
+    here: [&[f32]; 8],
+    mj: &[f32],
+    vj: &[f32],
+    d: [&[f32]; 3],
+    a: [&[f32]; 3],
+    n: [&[f32]; 3],
+    count: &mut [f32],
+    variance: &mut [f32],
+    s: [&mut [f32]; 3],
+) {
+    add_similar(here, mj, vj, d, a, n, count, variance, s)
+}
+
+/// The similarity test and sums of [`window_sums`]. Every row it writes is a parameter of
+/// its own: the compiler knows only those not to overlap what is read, and vectorises the
+/// loop (slices inside arrays leave it scalar, four times slower).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn add_similar(
+    [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 8],
+    mj: &[f32],
+    vj: &[f32],
+    [d0, d1, d2]: [&[f32]; 3],
+    [a0j, a1j, a2j]: [&[f32]; 3],
+    [n0j, n1j, n2j]: [&[f32]; 3],
+    count: &mut [f32],
+    variance: &mut [f32],
+    [s0, s1, s2]: [&mut [f32]; 3],
+) {
+    let (errors2, normal2) = (SIMILAR_ERRORS * SIMILAR_ERRORS, SIMILAR_NORMAL * SIMILAR_NORMAL);
+    for k in 0..count.len() {
+        let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
+        let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
+        let e = mj[k] - mi[k];
+        let similar = (albedo <= SIMILAR_ALBEDO)
+            & (e0 * e0 + e1 * e1 + e2 * e2 <= normal2)
+            & (e * e <= errors2 * (vj[k] + vi[k]));
+        let s = if similar { 1.0 } else { 0.0 };
+        count[k] += s;
+        variance[k] += s * vj[k];
+        s0[k] += s * d0[k];
+        s1[k] += s * d1[k];
+        s2[k] += s * d2[k];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::recompose;
+    use super::*;
+    use crate::model::Specular;
+
+    /// A bound of 2 errors over pixels of noisy radiance `noisy`, standard error `error`
+    /// and clamped value `clamped` (one value for all three channels).
+    fn bound(noisy: &[f32], error: &[f32], clamped: &[f32]) -> NoisySpecular {
+        let n = noisy.len();
+        let m = |i: usize| 1.0 + noisy[i];
+        NoisySpecular {
+            errors: 2.0,
+            noisy: std::array::from_fn(|_| noisy.to_vec()),
+            variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
+            clamped: std::array::from_fn(|_| clamped.to_vec()),
+        }
+    }
+
+    #[test]
+    fn the_specular_branch_moves_a_pixel_at_most_two_of_its_errors_but_outliers_go() {
+        // 0: a dark pixel that no sample of a light reached takes no light from its
+        //    neighbour (error 0.01: up to 0.02 more);
+        // 1: a firefly whose error is its size goes;
+        // 2: a speck the variance does not show still goes down to its clamped value;
+        // 3: a texture pixel every sample saw keeps its detail (moved 0.1 of its 0.5 asked);
+        // 4: a move within the bound is kept as it is.
+        let b = bound(&[0.05, 80.0, 500.0, 1.0, 1.0], &[0.01, 80.0, 0.1, 0.05, 0.5], &[0.05, 0.3, 0.2, 1.0, 1.0]);
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![2.0, 0.5, 0.2, 0.5, 1.6]);
+        b.apply(&mut out);
+        let want = [0.07, 0.5, 0.2, 0.9, 1.6];
+        for (o, w) in out[0].iter().zip(want) {
+            assert!((o - w).abs() < 1e-3 * w.max(1.0), "{:?} against {want:?}", out[0]);
+        }
+        assert_eq!(out[0], out[2]);
+    }
+
+    /// The ceiling (2 errors) over rows `frame` of a 12-wide frame of one surface (albedo
+    /// 0.5), whose pixel `i` (counted from the frame's top) shows d̃ `d(i)` with variance
+    /// `v(i)`; rows `rows` of those.
+    fn ceiling(
+        frame: Range<usize>,
+        d: impl Fn(usize) -> f32,
+        v: impl Fn(usize) -> f32,
+        rows: Range<usize>,
+    ) -> DiffuseCeiling {
+        let pixels = frame.start * 12..frame.end * 12;
+        let mut f = Features::new(&crate::features::tests::inputs(12, frame.len(), |_| 0.0));
+        f.d_tilde = std::array::from_fn(|_| pixels.clone().map(&d).collect());
+        f.d_variance = pixels.map(v).collect();
+        let arch = Architecture { diffuse_bound: Some(2), ..Architecture::ladder(crate::model::Quality::Fast) };
+        DiffuseCeiling::of(&arch, &f, rows).unwrap()
+    }
+
+    #[test]
+    fn the_diffuse_branch_brightens_no_pixel_past_its_similar_neighbours() {
+        // Columns 0–3 lit (5 ± 0.1), 4–11 dark (0.07 ± 0.01): the kernels carry 1.8 across
+        // the edge into column 4; the ceiling is the dark side's 0.07 + 2 × 0.01.
+        let lit = |i: usize| i % 12 < 4;
+        let c = ceiling(0..7, |i| if lit(i) { 5.0 } else { 0.07 }, |i| if lit(i) { 0.01 } else { 1e-4 }, 0..7);
+        let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 84]);
+        d_hat[0][3 * 12 + 3] = 4.0;
+        c.apply(&mut d_hat);
+        assert!((d_hat[1][3 * 12 + 4] - 0.09).abs() < 1e-5, "{}", d_hat[1][3 * 12 + 4]);
+        assert!((d_hat[1][3 * 12 + 11] - 0.09).abs() < 1e-5, "{}", d_hat[1][3 * 12 + 11]);
+        // The lit side keeps what it is given, dimmed or not.
+        assert_eq!((d_hat[1][3 * 12 + 3], d_hat[0][3 * 12 + 3]), (1.8, 4.0));
+    }
+
+    #[test]
+    fn a_noisy_surface_is_filled_and_sparse_light_is_not_bounded() {
+        // Two pixels in three got one bright sample (0.4, variance 0.05): a dark one among
+        // them may be filled to its neighbours' mean and beyond.
+        let hit = |i: usize| i % 3 != 2;
+        let c = ceiling(0..7, |i| if hit(i) { 0.4 } else { 0.0 }, |i| if hit(i) { 0.05 } else { 0.0 }, 2..5);
+        let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.5; 36]);
+        c.apply(&mut d_hat);
+        assert!(d_hat.iter().flatten().all(|&v| v == 0.5), "{d_hat:?}");
+        // One pixel in 12 lit: too few to say how bright the rest is.
+        let hit = |i: usize| i.is_multiple_of(12);
+        let c = ceiling(0..7, |i| if hit(i) { 0.4 } else { 0.0 }, |i| if hit(i) { 0.05 } else { 0.0 }, 0..7);
+        assert!(c.ceiling.iter().all(|v| v.is_infinite()));
+    }
+
+    #[test]
+    fn a_band_read_with_its_context_rows_has_the_whole_frames_ceiling() {
+        let d = |i: usize| ((i * 7919) % 13) as f32 * 0.1;
+        let v = |i: usize| ((i * 104_729) % 5) as f32 * 0.01;
+        let whole = ceiling(0..16, d, v, 0..16);
+        for band in [0..4usize, 6..9, 12..16] {
+            let context = band.start.saturating_sub(CEILING_RADIUS)..(band.end + CEILING_RADIUS).min(16);
+            let inner = band.start - context.start..band.end - context.start;
+            let c = ceiling(context, d, v, inner);
+            assert_eq!(c.ceiling[..], whole.ceiling[band.start * 36..band.end * 36], "{band:?}");
+        }
+    }
+
+    #[test]
+    fn a_streamed_band_is_read_with_the_context_rows_its_ceiling_needs() {
+        let ladder = Architecture::ladder(crate::model::Quality::Fast);
+        for (bound, context) in [(None, crate::features::CONTEXT), (Some(2), crate::features::CONTEXT + CEILING_RADIUS)]
+        {
+            let model = crate::model::Model::xavier(Architecture { diffuse_bound: bound, ..ladder }, 1).unwrap();
+            let d = super::super::Denoiser::new(model, super::super::Options::default()).unwrap();
+            assert!(d.streams(640));
+            assert_eq!(d.halo(640), context, "{bound:?}");
+        }
+    }
+
+    #[test]
+    fn a_bound_on_hostile_values_never_panics_and_stays_finite() {
+        let mut b = bound(&[1.0, 0.0, 3e38], &[f32::NAN, f32::INFINITY, 3e38], &[1.0, 0.0, 3e38]);
+        b.variance[0] = f32::NAN;
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![f32::NAN, 5.0, 1.0]);
+        b.apply(&mut out);
+        let ceiling = DiffuseCeiling { ceiling: [f32::NAN, 1.0, f32::INFINITY].repeat(3), width: 3 };
+        let d = recompose(
+            &std::array::from_fn(|_| vec![0.5; 3]),
+            std::array::from_fn(|_| vec![f32::NAN, 0.1, f32::INFINITY]),
+            &std::array::from_fn(|_| vec![f32::NAN, 90.0, -1.0]),
+            (3, 1),
+            Specular::Log,
+            1.0,
+            &Bounds { specular: Some(b), diffuse: Some(ceiling) },
+        );
+        assert!(d.color.iter().flatten().all(|v| v.is_finite()), "{:?}", d.color);
+    }
+}
