@@ -128,7 +128,12 @@ impl DiffuseCeiling {
         let errors = arch.diffuse_bound? as f32;
         let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
         let (d, var, albedo, normal) = (&f.d_tilde, &f.d_variance, &f.albedo, &f.normal);
-        let mean: Vec<f32> = (0..w * h).into_par_iter().map(|i| (d[0][i] + d[1][i] + d[2][i]) / 3.0).collect();
+        // The mean of d̃'s channels, on the rows the windows read only: a tiled band's
+        // region holds the network's whole reach beyond them.
+        let read = rows.start.saturating_sub(r) * w..((rows.end + r).min(h)) * w;
+        let mut mean = vec![0f32; w * h];
+        mean[read.clone()].par_iter_mut().zip(read).for_each(|(m, i)| *m = (d[0][i] + d[1][i] + d[2][i]) / 3.0);
+        let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         let mut ceiling = vec![0f32; 3 * w * rows.len()];
@@ -144,7 +149,7 @@ impl DiffuseCeiling {
                         let (j0, j1) = ((x0 as isize + dx) as usize, (x1 as isize + dx) as usize);
                         let here = planes.map(|p| &p[y * w..][x0..x1]);
                         let there = planes.map(|p| &p[yy * w..][j0..j1]);
-                        window_sums(&here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
+                        window_sums(add, &here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
                     }
                 }
             }
@@ -176,13 +181,13 @@ impl DiffuseCeiling {
 
 /// Adds, for each pixel of `here` (planes: mean d̃, its variance, d̃ RGB, albedo RGB,
 /// normal XYZ), what its neighbour at the same place in `there` brings to [`DiffuseCeiling`]'s
-/// sums `acc` (see there). Branch-free, so that it vectorises.
-fn window_sums(here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; 7]) {
+/// sums `acc` (see there), with `add` ([`add_similar_avx2_or_not`], chosen once per
+/// ceiling). Branch-free, so that it vectorises.
+fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; 7]) {
     let n = here[0].len();
     let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
     let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
     let [count, variance, s0, s1, s2, pixels, lit] = acc.each_mut().map(|a| &mut a[..n]);
-    let add = add_similar_avx2_or_not();
     add(
         [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
         mj,
