@@ -173,7 +173,11 @@ pub fn describe(m: &Model) {
             }
             match a.diffuse_bound {
                 Some(k) => println!(
-                    "  diffuse       brightened at most {k} standard errors past its similar neighbours' noisy mean"
+                    "  diffuse       brightened at most {k} standard errors past its similar neighbours' noisy mean{}",
+                    match a.variances {
+                        kpcn::model::Variances::File => "",
+                        kpcn::model::Variances::Spatial => " (errors from the median variance of the neighbours alike)",
+                    }
                 ),
                 None => println!("  diffuse       unbounded (as far as its kernels take it)"),
             }

@@ -6,7 +6,7 @@
 
 use crate::features::{Branch, Features, specular_of_log};
 use crate::kernel;
-use crate::model::Architecture;
+use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -28,7 +28,11 @@ impl Bounds {
     /// Rows of features beyond a band's that its bounds read, beyond those its features
     /// themselves need ([`crate::features::CONTEXT`]).
     pub(crate) fn context(arch: &Architecture) -> usize {
-        if arch.diffuse_bound.is_some() { CEILING_RADIUS } else { 0 }
+        match (arch.diffuse_bound, arch.variances) {
+            (None, _) => 0,
+            (Some(_), Variances::File) => CEILING_RADIUS,
+            (Some(_), Variances::Spatial) => SPARSE_RADIUS,
+        }
     }
 }
 
@@ -99,6 +103,12 @@ const SIMILAR_ERRORS: f32 = 2.0;
 /// fewer did, the light is sparse (a room lit through a slit, at a few samples) and the
 /// window's samples say too little of how bright it is.
 const LIT_SHARE: f32 = 0.5;
+/// On spatial variance estimates, a pixel whose 7×7 window is sparse gets its ceiling from
+/// a window this wide each side instead (15×15),
+pub(crate) const SPARSE_RADIUS: usize = 7;
+/// where at least this many of its neighbours alike in albedo and normal saw light (the
+/// mean of 8 hits is known to about a third); else none.
+const SPARSE_HITS: f32 = 8.0;
 
 /// The most the diffuse branch may make each pixel of a band
 /// ([`crate::model::Architecture::diffuse_bound`]): the mean noisy value (d̃, per channel)
@@ -106,6 +116,13 @@ const LIT_SHARE: f32 = 0.5;
 /// mean there (from the mean of their variances). Similar: albedo and normal alike, and
 /// a noisy value within 2 standard errors of the pixel's; the pixel is always its own.
 /// None where fewer than half the window's pixels saw light.
+///
+/// A model fed spatial variance estimates ([`Variances::Spatial`]: files without
+/// variances, as Blender writes them) reads one variance for the whole window instead:
+/// the median over the neighbours alike in albedo and normal. A 3×3 estimate beside an
+/// edge holds the bright side's light, so per pixel it would lift the ceiling exactly
+/// where the kernels bleed; and where the 7×7 window is sparse, the ceiling is sought in a
+/// 15×15 one ([`spatial_ceiling_row`]).
 ///
 /// Kernels that reach across an edge carry light from the bright side into the dark one,
 /// a band of pixels a few times brighter than the surface they sit on: the dark side's
@@ -122,21 +139,27 @@ pub(crate) struct DiffuseCeiling {
 
 impl DiffuseCeiling {
     /// The ceiling of `arch`, if it has one, over rows `rows` of the region `f` holds
-    /// (whose rows beyond them, [`CEILING_RADIUS`] at least where the frame goes on, are
+    /// (whose rows beyond them, [`Bounds::context`] at least where the frame goes on, are
     /// the window's context; the window stops at the region's edges).
     fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<DiffuseCeiling> {
         let errors = arch.diffuse_bound? as f32;
         let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+        let reach = Bounds::context(arch);
         let (d, var, albedo, normal) = (&f.d_tilde, &f.d_variance, &f.albedo, &f.normal);
         // The mean of d̃'s channels, on the rows the windows read only: a tiled band's
         // region holds the network's whole reach beyond them.
-        let read = rows.start.saturating_sub(r) * w..((rows.end + r).min(h)) * w;
+        let read = rows.start.saturating_sub(reach) * w..((rows.end + reach).min(h)) * w;
         let mut mean = vec![0f32; w * h];
         mean[read.clone()].par_iter_mut().zip(read).for_each(|(m, i)| *m = (d[0][i] + d[1][i] + d[2][i]) / 3.0);
         let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         let mut ceiling = vec![0f32; 3 * w * rows.len()];
+        if arch.variances == Variances::Spatial {
+            let window = Window { width: w, height: h, errors, mean: &mean, f };
+            ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| spatial_ceiling_row(&window, y, out));
+            return Some(DiffuseCeiling { ceiling, width: w });
+        }
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
             // Sums over the window, one offset at a time along the whole row (so that the
             // loop vectorises), each pixel's in the window's order: count of similar
@@ -177,6 +200,125 @@ impl DiffuseCeiling {
             }
         }
     }
+}
+
+/// What [`spatial_ceiling_row`] reads: the region's features, the mean of d̃'s channels
+/// (on the rows the windows read) and the ceiling's errors.
+struct Window<'a> {
+    width: usize,
+    height: usize,
+    errors: f32,
+    mean: &'a [f32],
+    f: &'a Features,
+}
+
+/// The ceiling of row `y` (`out`: `[c][x]`) where the variances are spatial estimates:
+/// per pixel, the median variance `m` of the 7×7 window's neighbours alike in albedo and
+/// normal; of those, the ones whose mean d̃ is within 2 standard errors of the pixel's
+/// (√(2m)) are similar, and the ceiling is their mean d̃ plus `errors` × √m. Where under
+/// half the 7×7 window saw light, the 15×15 window's alike neighbours give it instead
+/// (their mean plus `errors` × the root of their median variance), if
+/// [`SPARSE_HITS`] of them saw light. Not vectorised (a median per pixel): only models fed
+/// spatial estimates pay for it.
+fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
+    let (w, f) = (win.width, win.f);
+    let (albedo, normal) = (&f.albedo, &f.normal);
+    let mut variances = Vec::with_capacity((2 * SPARSE_RADIUS + 1) * (2 * SPARSE_RADIUS + 1));
+    let mut alike = Vec::with_capacity(variances.capacity());
+    for x in 0..w {
+        let i = y * w + x;
+        let is_alike = |j: usize| {
+            let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
+            let n: f32 = (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum();
+            a <= SIMILAR_ALBEDO && n <= SIMILAR_NORMAL * SIMILAR_NORMAL
+        };
+        let (pixels, lit) = win.gather(x, y, CEILING_RADIUS, is_alike, &mut alike, &mut variances);
+        let ceiling = if lit < LIT_SHARE * pixels {
+            win.gather(x, y, SPARSE_RADIUS, is_alike, &mut alike, &mut variances);
+            win.sparse_ceiling(&alike, &mut variances)
+        } else {
+            win.dense_ceiling(i, &alike, &mut variances)
+        };
+        for (c, v) in ceiling.into_iter().enumerate() {
+            out[c * w + x] = v;
+        }
+    }
+}
+
+impl Window<'_> {
+    /// The pixels of the window of half-side `r` around (`x`, `y`) that `is_alike` keeps
+    /// (into `alike`), their finite variances (into `variances`), and the window's pixel
+    /// and lit-pixel counts.
+    fn gather(
+        &self,
+        x: usize,
+        y: usize,
+        r: usize,
+        is_alike: impl Fn(usize) -> bool,
+        alike: &mut Vec<usize>,
+        variances: &mut Vec<f32>,
+    ) -> (f32, f32) {
+        let (w, var) = (self.width, &self.f.d_variance);
+        let (mut pixels, mut lit) = (0f32, 0f32);
+        alike.clear();
+        variances.clear();
+        for yy in y.saturating_sub(r)..(y + r + 1).min(self.height) {
+            let row = yy * w + x.saturating_sub(r)..yy * w + (x + r + 1).min(w);
+            for (j, &v) in row.clone().zip(&var[row]) {
+                pixels += 1.0;
+                lit += if self.mean[j] != 0.0 { 1.0 } else { 0.0 };
+                if is_alike(j) {
+                    alike.push(j);
+                    if v >= 0.0 && v.is_finite() {
+                        variances.push(v);
+                    }
+                }
+            }
+        }
+        (pixels, lit)
+    }
+
+    /// The ceiling of pixel `i` from the similar ones among `alike` (see
+    /// [`spatial_ceiling_row`]); none where no variance is finite.
+    fn dense_ceiling(&self, i: usize, alike: &[usize], variances: &mut [f32]) -> [f32; 3] {
+        let m = median(variances);
+        if m.is_nan() {
+            return [f32::INFINITY; 3];
+        }
+        let (mut count, mut sum) = (0f32, [0f32; 3]);
+        for &j in alike {
+            let e = self.mean[j] - self.mean[i];
+            if j == i || e * e <= SIMILAR_ERRORS * SIMILAR_ERRORS * 2.0 * m {
+                count += 1.0;
+                (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
+            }
+        }
+        sum.map(|s| s / count.max(1.0) + self.errors * m.sqrt())
+    }
+
+    /// The ceiling from all of `alike` (a sparse pixel's wide window); none where fewer
+    /// than [`SPARSE_HITS`] of them saw light.
+    fn sparse_ceiling(&self, alike: &[usize], variances: &mut [f32]) -> [f32; 3] {
+        let hits = alike.iter().filter(|&&j| self.mean[j] != 0.0).count() as f32;
+        let m = median(variances);
+        if hits < SPARSE_HITS || m.is_nan() {
+            return [f32::INFINITY; 3];
+        }
+        let mut sum = [0f32; 3];
+        for &j in alike {
+            (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
+        }
+        sum.map(|s| s / alike.len() as f32 + self.errors * m.sqrt())
+    }
+}
+
+/// The upper median of `v` (reordered); NaN when empty.
+fn median(v: &mut [f32]) -> f32 {
+    if v.is_empty() {
+        return f32::NAN;
+    }
+    let half = v.len() / 2;
+    *v.select_nth_unstable_by(half, f32::total_cmp).1
 }
 
 /// Adds, for each pixel of `here` (planes: mean d̃, its variance, d̃ RGB, albedo RGB,
@@ -321,12 +463,55 @@ mod tests {
         v: impl Fn(usize) -> f32,
         rows: Range<usize>,
     ) -> DiffuseCeiling {
+        ceiling_fed(Variances::File, frame, d, v, rows)
+    }
+
+    /// [`ceiling`] of a model fed `variances`.
+    fn ceiling_fed(
+        variances: Variances,
+        frame: Range<usize>,
+        d: impl Fn(usize) -> f32,
+        v: impl Fn(usize) -> f32,
+        rows: Range<usize>,
+    ) -> DiffuseCeiling {
         let pixels = frame.start * 12..frame.end * 12;
         let mut f = Features::new(&crate::features::tests::inputs(12, frame.len(), |_| 0.0));
         f.d_tilde = std::array::from_fn(|_| pixels.clone().map(&d).collect());
         f.d_variance = pixels.map(v).collect();
-        let arch = Architecture { diffuse_bound: Some(2), ..Architecture::ladder(crate::model::Quality::Fast) };
+        let arch =
+            Architecture { diffuse_bound: Some(2), variances, ..Architecture::ladder(crate::model::Quality::Fast) };
         DiffuseCeiling::of(&arch, &f, rows).unwrap()
+    }
+
+    #[test]
+    fn on_spatial_variances_an_edges_estimate_does_not_lift_the_ceiling() {
+        // Columns 0–3 lit (5), 4–11 dark (0.07); the 3×3 estimates of columns 3 and 4 hold
+        // both sides (variance 6), the rest are small. The kernels carry 1.8 into column 4.
+        let lit = |i: usize| i % 12 < 4;
+        let d = |i: usize| if lit(i) { 5.0 } else { 0.07 };
+        let v = |i: usize| match i % 12 {
+            3 | 4 => 6.0,
+            0..=2 => 0.01,
+            _ => 1e-4,
+        };
+        let edge = 3 * 12 + 4;
+        let mut per_pixel: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 84]);
+        ceiling(0..7, d, v, 0..7).apply(&mut per_pixel);
+        // Read per pixel, the edge's variance lets the light through …
+        assert_eq!(per_pixel[0][edge], 1.8);
+        // … the window's median variance (0.01: of its 49 variances, 14 are the edge's) does
+        // not: the dark neighbours' 0.07 + 2 × 0.1.
+        let mut median: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 84]);
+        ceiling_fed(Variances::Spatial, 0..7, d, v, 0..7).apply(&mut median);
+        assert!((median[1][edge] - 0.27).abs() < 1e-5, "{}", median[1][edge]);
+        // The lit side keeps what it is given.
+        assert_eq!(median[2][3 * 12 + 1], 1.8);
+        // Hostile features: no panic, and what was finite stays finite.
+        let hostile = |i: usize| [f32::NAN, f32::INFINITY, -1.0, 3e38][i % 4];
+        let c = ceiling_fed(Variances::Spatial, 0..7, hostile, hostile, 0..7);
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.5; 84]);
+        c.apply(&mut out);
+        assert!(out.iter().flatten().all(|v| v.is_finite()));
     }
 
     #[test]
@@ -360,27 +545,62 @@ mod tests {
     }
 
     #[test]
+    fn on_spatial_variances_sparse_light_is_bounded_by_a_wider_window_where_it_holds_enough_hits() {
+        // One pixel in `every` got a sample (0.4; its 3×3 estimate 0.05, the rest 0).
+        let sparse = |every: usize| {
+            let hit = move |i: usize| i.is_multiple_of(every);
+            ceiling_fed(
+                Variances::Spatial,
+                0..20,
+                move |i| if hit(i) { 0.4 } else { 0.0 },
+                move |i| if hit(i) { 0.05 } else { 0.0 },
+                0..20,
+            )
+        };
+        // One in four: under half of a 7×7 window saw light, so the 15×15 window's 8+ hits
+        // give the ceiling, their mean 0.1 (the median variance is 0).
+        let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 240]);
+        sparse(4).apply(&mut d_hat);
+        let middle = 10 * 12 + 6;
+        assert!((d_hat[0][middle] - 0.1).abs() < 0.02, "{}", d_hat[0][middle]);
+        // One pixel in 48 (every fourth row's first pixel): at most 4 hits in a 15×15
+        // window, too few: no ceiling.
+        let c = sparse(48);
+        assert!(c.ceiling.iter().all(|v| v.is_infinite()));
+    }
+
+    #[test]
     fn a_band_read_with_its_context_rows_has_the_whole_frames_ceiling() {
         let d = |i: usize| ((i * 7919) % 13) as f32 * 0.1;
         let v = |i: usize| ((i * 104_729) % 5) as f32 * 0.01;
-        let whole = ceiling(0..16, d, v, 0..16);
-        for band in [0..4usize, 6..9, 12..16] {
-            let context = band.start.saturating_sub(CEILING_RADIUS)..(band.end + CEILING_RADIUS).min(16);
-            let inner = band.start - context.start..band.end - context.start;
-            let c = ceiling(context, d, v, inner);
-            assert_eq!(c.ceiling[..], whole.ceiling[band.start * 36..band.end * 36], "{band:?}");
+        // Sparse on the left (one pixel in four lit), dense on the right.
+        let d = |i: usize| if i % 12 < 6 && !i.is_multiple_of(4) { 0.0 } else { d(i) };
+        for (variances, radius) in [(Variances::File, CEILING_RADIUS), (Variances::Spatial, SPARSE_RADIUS)] {
+            let whole = ceiling_fed(variances, 0..24, d, v, 0..24);
+            for band in [0..4usize, 9..12, 20..24] {
+                let context = band.start.saturating_sub(radius)..(band.end + radius).min(24);
+                let inner = band.start - context.start..band.end - context.start;
+                let c = ceiling_fed(variances, context, d, v, inner);
+                assert_eq!(c.ceiling[..], whole.ceiling[band.start * 36..band.end * 36], "{variances:?} {band:?}");
+            }
         }
     }
 
     #[test]
     fn a_streamed_band_is_read_with_the_context_rows_its_ceiling_needs() {
         let ladder = Architecture::ladder(crate::model::Quality::Fast);
-        for (bound, context) in [(None, crate::features::CONTEXT), (Some(2), crate::features::CONTEXT + CEILING_RADIUS)]
-        {
-            let model = crate::model::Model::xavier(Architecture { diffuse_bound: bound, ..ladder }, 1).unwrap();
+        let context = crate::features::CONTEXT;
+        for (bound, variances, context) in [
+            (None, Variances::File, context),
+            (Some(2), Variances::File, context + CEILING_RADIUS),
+            (None, Variances::Spatial, context),
+            (Some(2), Variances::Spatial, context + SPARSE_RADIUS),
+        ] {
+            let model =
+                crate::model::Model::xavier(Architecture { diffuse_bound: bound, variances, ..ladder }, 1).unwrap();
             let d = super::super::Denoiser::new(model, super::super::Options::default()).unwrap();
             assert!(d.streams(640));
-            assert_eq!(d.halo(640), context, "{bound:?}");
+            assert_eq!(d.halo(640), context, "{bound:?} {variances:?}");
         }
     }
 

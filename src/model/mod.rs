@@ -279,6 +279,10 @@ mod tests {
             assert_eq!(m.arch, want, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }
+        // `spatial` ships under the same ceiling (its errors from the window's median
+        // variance), its specular branch unbounded.
+        let s = Model::resolve("spatial").unwrap().arch;
+        assert_eq!((s.variances, s.diffuse_bound, s.specular_bound), (Variances::Spatial, Some(2), None));
     }
 
     #[test]
