@@ -151,15 +151,15 @@ impl DiffuseCeiling {
         let read = rows.start.saturating_sub(reach) * w..((rows.end + reach).min(h)) * w;
         let mut mean = vec![0f32; w * h];
         mean[read.clone()].par_iter_mut().zip(read).for_each(|(m, i)| *m = (d[0][i] + d[1][i] + d[2][i]) / 3.0);
-        let add = add_similar_avx2_or_not();
-        let planes: [&[f32]; 11] =
-            [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         let mut ceiling = vec![0f32; 3 * w * rows.len()];
         if arch.variances == Variances::Spatial {
             let window = Window { width: w, height: h, errors, mean: &mean, f };
             ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| spatial_ceiling_row(&window, y, out));
             return Some(DiffuseCeiling { ceiling, width: w });
         }
+        let add = add_similar_avx2_or_not();
+        let planes: [&[f32]; 11] =
+            [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
             // Sums over the window, one offset at a time along the whole row (so that the
             // loop vectorises), each pixel's in the window's order: count of similar
@@ -229,8 +229,7 @@ fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
         let i = y * w + x;
         let is_alike = |j: usize| {
             let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
-            let n: f32 = (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum();
-            a <= SIMILAR_ALBEDO && n <= SIMILAR_NORMAL * SIMILAR_NORMAL
+            alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
         };
         let (pixels, lit) = win.gather(x, y, CEILING_RADIUS, is_alike, &mut alike, &mut variances);
         let ceiling = if lit < LIT_SHARE * pixels {
@@ -310,6 +309,14 @@ impl Window<'_> {
         }
         sum.map(|s| s / alike.len() as f32 + self.errors * m.sqrt())
     }
+}
+
+/// Whether two pixels are alike in albedo and normal, from the largest difference of their
+/// albedos' channels and the squared distance of their normals. Branch-free, so that
+/// [`add_similar`] vectorises.
+#[inline(always)]
+fn alike_surfaces(albedo: f32, normal2: f32) -> bool {
+    (albedo <= SIMILAR_ALBEDO) & (normal2 <= SIMILAR_NORMAL * SIMILAR_NORMAL)
 }
 
 /// The upper median of `v` (reordered); NaN when empty.
@@ -400,14 +407,12 @@ fn add_similar(
     variance: &mut [f32],
     [s0, s1, s2]: [&mut [f32]; 3],
 ) {
-    let (errors2, normal2) = (SIMILAR_ERRORS * SIMILAR_ERRORS, SIMILAR_NORMAL * SIMILAR_NORMAL);
+    let errors2 = SIMILAR_ERRORS * SIMILAR_ERRORS;
     for k in 0..count.len() {
         let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
         let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
         let e = mj[k] - mi[k];
-        let similar = (albedo <= SIMILAR_ALBEDO)
-            & (e0 * e0 + e1 * e1 + e2 * e2 <= normal2)
-            & (e * e <= errors2 * (vj[k] + vi[k]));
+        let similar = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2) & (e * e <= errors2 * (vj[k] + vi[k]));
         let s = if similar { 1.0 } else { 0.0 };
         count[k] += s;
         variance[k] += s * vj[k];
