@@ -402,9 +402,10 @@ fn denoise_file(
                     t.elapsed().as_secs_f64()
                 );
                 println!(
-                    "{}: read {:.2} s, features {:.2} s, network {:.2} s, write {:.2} s",
+                    "{}: read {:.2} s{}, features {:.2} s, network {:.2} s, write {:.2} s",
                     input.display(),
                     s.read.as_secs_f64(),
+                    if o.report.openexr_core { " (OpenEXRCore)" } else { "" },
                     s.features.as_secs_f64(),
                     s.network.as_secs_f64(),
                     s.write.as_secs_f64()

@@ -134,6 +134,9 @@ pub struct FileReport {
     pub remainder: crate::io::layout::Remainder,
     /// Where the time went.
     pub stages: Stages,
+    /// Whether the input's pixels were decoded by OpenEXRCore
+    /// ([`crate::io::read_lossless_exr_with_openexr_core`]).
+    pub openexr_core: bool,
 }
 
 /// Wall time of a file's stages, summed over its bands.
@@ -499,6 +502,7 @@ impl FileJob {
         totals.retain(|t| t.2 != features::Repairs::default());
         report.repairs = totals;
         report.stages = stages;
+        report.openexr_core = self.reader.reads_with_openexr_core();
         Ok(report)
     }
 

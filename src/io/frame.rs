@@ -1,6 +1,7 @@
 //! `FrameBuffers`: one frame as named f32 planes, read from and written to files.
 
 use super::error::IoError;
+use super::exr_core;
 use super::oiio::{Attribute, Input, SampleFormat, SubimageInfo};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -291,6 +292,8 @@ pub struct FrameReader {
     /// and [`FrameReader::more`]): it starts the next one, whose first rows a streamed
     /// band shares with them, so the chunk it holds decoded is not decoded again.
     last_decoder: usize,
+    /// Whether the handles that decode are OpenEXRCore's (`exr_core`).
+    openexr_core: bool,
 }
 
 /// The largest frame kpcn reads: 16384×16384 pixels (a 16K square; renders are smaller).
@@ -369,6 +372,15 @@ impl FrameReader {
             part_names.push(part);
         }
         let chunk_rows = chunk_rows(header.attribute("compression"));
+        // The headers and metadata come from the classic reader (what the output copies);
+        // pixels, where the file qualifies, from OpenEXRCore, if it sees the same parts.
+        let tiled = subimages.iter().any(|i| i.tile_height > 0);
+        let core =
+            exr_core::enabled() && exr_core::qualifies(&input.format_name(), header.attribute("compression"), tiled);
+        let (input, openexr_core) = match core.then(|| Input::open_with_openexr_core(path)) {
+            Some(Ok(core)) if core.lists_the_same_parts_as(&input) => (core, true),
+            _ => (input, false),
+        };
         Ok(FrameReader {
             input,
             more: Vec::new(),
@@ -378,6 +390,7 @@ impl FrameReader {
             part_names,
             chunk_rows,
             last_decoder: 0,
+            openexr_core,
         })
     }
 
@@ -392,12 +405,19 @@ impl FrameReader {
         self.more.truncate(n.saturating_sub(1));
         self.last_decoder = 0;
         while self.more.len() + 1 < n {
-            let handle = Input::open(&path).map_err(|reason| {
+            let handle = if self.openexr_core { Input::open_with_openexr_core(&path) } else { Input::open(&path) };
+            let handle = handle.map_err(|reason| {
                 IoError::from_oiio(&path, reason, |reason| IoError::Open { path: path.clone(), reason })
             })?;
             self.more.push(handle);
         }
         Ok(())
+    }
+
+    /// Whether pixels are decoded by OpenEXRCore
+    /// ([`read_lossless_exr_with_openexr_core`](super::read_lossless_exr_with_openexr_core)).
+    pub fn reads_with_openexr_core(&self) -> bool {
+        self.openexr_core
     }
 
     /// Size, windows, metadata and source of the frame; no planes.

@@ -3,6 +3,7 @@
 
 pub mod atomic;
 mod error;
+mod exr_core;
 mod ffi;
 mod frame;
 pub mod layout;
@@ -11,6 +12,7 @@ mod view;
 mod write;
 
 pub use error::IoError;
+pub use exr_core::read_lossless_exr_with_openexr_core;
 pub use frame::{FrameBuffers, FrameReader, PartLayout, Plane, Window};
 pub use oiio::{
     Attribute, Input, Output, OutputSpec, SampleFormat, SubimageInfo, decode_exr_on_the_calling_thread, oiio_version,

@@ -182,11 +182,31 @@ unsafe impl Send for Input {}
 impl Input {
     /// Opens `path` and reads all subimage headers.
     pub fn open(path: &Path) -> Result<Self, String> {
+        Self::open_with(path, false)
+    }
+
+    /// Opens `path` as [`Input::open`] does, an EXR with OpenImageIO's OpenEXRCore reader
+    /// (see `exr_core`), whose reads decode on the calling thread.
+    pub(crate) fn open_with_openexr_core(path: &Path) -> Result<Self, String> {
+        Self::open_with(path, true)
+    }
+
+    fn open_with(path: &Path, openexr_core: bool) -> Result<Self, String> {
         let c = path_cstring(path)?;
         let mut raw = std::ptr::null_mut();
         // SAFETY: valid C string, out-pointer to a local.
-        check(unsafe { ffi::kpcn_input_open(c.as_ptr(), &mut raw) })?;
+        check(unsafe { ffi::kpcn_input_open(c.as_ptr(), i32::from(openexr_core), &mut raw) })?;
         Ok(Self { raw })
+    }
+
+    /// Whether `other` (a handle on the same file) lists the same parts: geometry,
+    /// channels and formats.
+    pub(crate) fn lists_the_same_parts_as(&self, other: &Input) -> bool {
+        self.subimages() == other.subimages()
+            && (0..self.subimages()).all(|s| {
+                matches!((self.info(s), other.info(s)), (Ok(x), Ok(y)) if x == y)
+                    && matches!((self.channels(s), other.channels(s)), (Ok(x), Ok(y)) if x == y)
+            })
     }
 
     /// OpenImageIO's format name, e.g. `openexr`.

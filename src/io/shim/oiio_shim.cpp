@@ -89,10 +89,30 @@ int kpcn_oiio_set_exr_threads(int n) {
     return guarded([&] { return OIIO::attribute("exr_threads", n) ? ok() : fail("exr_threads refused"); });
 }
 
-int kpcn_input_open(const char* path, kpcn_input** out) {
+int kpcn_input_open(const char* path, int openexr_core, kpcn_input** out) {
     return guarded([&]() {
         *out = nullptr;
-        auto in = ImageInput::open(path);
+        std::unique_ptr<ImageInput> in;
+        if (openexr_core) {
+            // OpenImageIO picks its EXR reader from a global attribute when the reader is
+            // made: set for this open only (one at a time), and put back even on a throw.
+            static std::mutex core_mutex;
+            std::lock_guard<std::mutex> lock(core_mutex);
+            int before = 0;
+            OIIO::getattribute("openexr:core", before);
+            struct Restore {
+                int before;
+                ~Restore() { OIIO::attribute("openexr:core", before); }
+            } restore{before};
+            OIIO::attribute("openexr:core", 1);
+            in = ImageInput::open(path);
+            // Its reads decode their chunks on the calling thread, like the classic
+            // reader's with `exr_threads` at -1: the caller spreads reads over handles.
+            if (in)
+                in->threads(1);
+        } else {
+            in = ImageInput::open(path);
+        }
         if (!in)
             return fail(OIIO::geterror());
         auto h = std::make_unique<kpcn_input>();

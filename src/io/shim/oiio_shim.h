@@ -58,7 +58,9 @@ int kpcn_oiio_version(void);
 /* Sets OpenImageIO's global attribute `exr_threads` (OpenEXR's codec thread pool; -1 = none). */
 int kpcn_oiio_set_exr_threads(int n);
 
-int kpcn_input_open(const char* path, kpcn_input** out);
+/* Opens `path`; with `openexr_core` nonzero an EXR is read by OpenImageIO's OpenEXRCore
+ * reader (`openexr:core`), decoding on the calling thread. */
+int kpcn_input_open(const char* path, int openexr_core, kpcn_input** out);
 void kpcn_input_close(kpcn_input* in);
 const char* kpcn_input_format_name(const kpcn_input* in);
 int kpcn_input_subimages(const kpcn_input* in);
