@@ -90,11 +90,11 @@ pub struct DenoiseArgs {
     /// band copies to the output are kept from its one decode until it is written (for
     /// 41 channels: a 1920-wide frame at the default, a 3840-wide one from 1024); else
     /// they are decoded again then. Below what the streams need (a 3840-wide frame: about
-    /// 400 MB), bands run in tiles with the network's context rows instead, never thinner
+    /// 390 MB), bands run in tiles with the network's context rows instead, never thinner
     /// than twice the reach: slower, within the budget. Not counted: the process's fixed
     /// cost (program, libraries, model, OpenEXR's row buffers for each decoding and
     /// encoding thread, thread stacks; 200-450 MB). Measured peak RSS with the default:
-    /// 1920x1080 with 41 channels 702 MB, 3840x2160 957 MB.
+    /// 1920x1080 with 41 channels 748 MiB, 3840x2160 936 MiB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.

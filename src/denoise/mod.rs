@@ -183,10 +183,16 @@ impl Denoiser {
 
     /// What both branches' streams hold on a `width`-wide frame.
     fn stream_bytes(&self, width: usize) -> usize {
-        let arch = &self.model.arch;
         let (_, rw, _) = self.reach().region(0, width, width);
-        let held = crate::model::stream::held_rows(arch);
-        2 * arch.region_bytes(rw, held, rw, held)
+        let held = self.stream_held_rows(width);
+        2 * self.model.arch.region_bytes(rw, held, rw, held)
+    }
+
+    /// The rows a stream down a `width`-wide frame holds at most: its region is the frame
+    /// with the network's reach each side.
+    fn stream_held_rows(&self, width: usize) -> usize {
+        let (_, rw, _) = self.reach().region(0, width, width);
+        crate::model::stream::held_rows(&self.model.arch, rw)
     }
 
     /// The threads it runs on.
@@ -254,7 +260,7 @@ impl Denoiser {
         if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
             // many as a stream holds), and a band's result of nine planes.
-            let held = crate::model::stream::held_rows(&self.model.arch);
+            let held = self.stream_held_rows(width);
             return Features::bytes(width, total_rows)
                 + self.stream_bytes(width)
                 + width * (6 * held + 9 * rows.len()) * 4;

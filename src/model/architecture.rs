@@ -431,7 +431,7 @@ impl Architecture {
     pub fn region_bytes(&self, rw: usize, rh: usize, tw: usize, th: usize) -> usize {
         let p = rw * rh;
         if self.design == Design::MultiScale {
-            return rw * rh.min(stream::held_rows(self)) * pyramid::bytes_per_pixel(self);
+            return rw * rh.min(stream::held_rows(self, rw)) * pyramid::bytes_per_pixel(self);
         }
         let widest = self.channels.max(INPUT_CHANNELS);
         let im2col = widest * self.conv_size * self.conv_size * p;

@@ -18,15 +18,25 @@ use crate::kernel::planes::{Planes, blend};
 use std::cell::RefCell;
 use std::collections::VecDeque;
 
-/// Full-resolution rows evaluated per step: one row of the coarsest scale of a 5-level
-/// network, few enough that a step's windows stay small beside the rows held.
-const CHUNK: usize = 32;
+/// Full-resolution rows evaluated per step on a `w`-wide region (a frame's width and the
+/// network's reach each side): whole rows of the coarsest scale of a 5-level network. A
+/// stream holds two steps beside its reach, so regions wider than 2560 (a 4K frame's, not
+/// a 2048-wide frame's) take 16 rows rather than 32: on a 3840-wide frame that lowers
+/// the command's peak by about 50 MB at the same speed, while on a 1280-wide one 16 rows
+/// cost a tenth more time (BENCHMARKS.md, whole command).
+fn step_rows(w: usize) -> usize {
+    if w > 2560 { 16 } else { 32 }
+}
 
-/// Rows (of [`super::pyramid::bytes_per_pixel`] each) a stream holds at most, its
-/// working rows included: each layer keeps the rows its consumers still read, about half
-/// the reach in all (measured by the test below), plus two steps.
-pub fn held_rows(arch: &Architecture) -> usize {
-    arch.reach() / 2 + 2 * CHUNK
+/// Rows (of [`super::pyramid::bytes_per_pixel`] each) a stream on a `w`-wide region
+/// holds at most, its working rows included: each layer keeps the rows its consumers
+/// still read, about half the reach in all (measured by the test below), plus two steps.
+pub fn held_rows(arch: &Architecture, w: usize) -> usize {
+    held_rows_with(arch, step_rows(w))
+}
+
+fn held_rows_with(arch: &Architecture, step: usize) -> usize {
+    arch.reach() / 2 + 2 * step
 }
 
 /// An operation of the recorded network; inputs are node indices.
@@ -171,6 +181,8 @@ pub struct Stream<'a> {
     /// Each layer's convolution radius.
     radii: Vec<usize>,
     h: usize,
+    /// Full-resolution rows evaluated per step ([`step_rows`]).
+    step: usize,
 }
 
 impl<'a> Stream<'a> {
@@ -197,7 +209,8 @@ impl<'a> Stream<'a> {
             }
         }
         let radii = arch.layer_shapes().iter().map(|s| s.2 / 2).collect();
-        Stream { arch, region: Region { arch, weights }, nodes, input, noisy, out, consumers, taken: 0, radii, h }
+        let step = step_rows(w);
+        Stream { arch, region: Region { arch, weights }, nodes, input, noisy, out, consumers, taken: 0, radii, h, step }
     }
 
     /// Appends the region's next rows: `input` its feature planes, `noisy` its colour
@@ -299,7 +312,7 @@ impl<'a> Stream<'a> {
                     _ => {
                         let (a, target) = (self.nodes[i].done, self.frontier(i));
                         if a < target {
-                            let b = (a + (CHUNK >> self.nodes[i].level).max(1)).min(target);
+                            let b = (a + (self.step >> self.nodes[i].level).max(1)).min(target);
                             let rows = self.compute(i, a, b);
                             let n = &mut self.nodes[i];
                             n.store.chunks.push_back((a, rows));
@@ -345,7 +358,7 @@ impl<'a> Stream<'a> {
         if a >= target {
             return false;
         }
-        let b = (a + CHUNK.max(grid)).min(target);
+        let b = (a + self.step.max(grid)).min(target);
         let (noisy, lo) = match self.needs(i, a, b)[..] {
             [(j, lo, hi)] => (self.nodes[j].store.rows(lo, hi), lo),
             _ => unreachable!("the colour reads the noisy colour"),
@@ -464,18 +477,22 @@ mod tests {
             let arch = model.arch;
             let weights = Weights::new(&arch, &model.specular).unwrap();
             let (w, h) = (256, 1024);
-            let mut s = Stream::new(&arch, &weights, w, h);
-            let mut most = 0;
-            for _ in 0..h / 32 {
-                s.push(Planes::zeros(INPUT_CHANNELS, w, 32), Planes::zeros(3, w, 32));
-                while s.take().is_some() {}
-                most = most.max(s.held_bytes());
+            // Both steps a frame's width may choose, on a narrow region to stay quick.
+            for step in [16, 32] {
+                let mut s = Stream::new(&arch, &weights, w, h);
+                s.step = step;
+                let mut most = 0;
+                for _ in 0..h / 32 {
+                    s.push(Planes::zeros(INPUT_CHANNELS, w, 32), Planes::zeros(3, w, 32));
+                    while s.take().is_some() {}
+                    most = most.max(s.held_bytes());
+                }
+                let estimate = held_rows_with(&arch, step) * w * pyramid::bytes_per_pixel(&arch);
+                println!("{preset}, steps of {step} rows: held at most {most} B, estimated {estimate} B");
+                assert!(most <= estimate, "{preset}, steps of {step}: held {most} B, estimated {estimate} B");
+                // And far below the whole region's.
+                assert!(8 * most < h * w * pyramid::bytes_per_pixel(&arch), "{preset}: held {most} B");
             }
-            let estimate = held_rows(&arch) * w * pyramid::bytes_per_pixel(&arch);
-            println!("{preset}: held at most {most} B, estimated {estimate} B");
-            assert!(most <= estimate, "{preset}: held {most} B, estimated {estimate} B");
-            // And far below the whole region's.
-            assert!(8 * most < h * w * pyramid::bytes_per_pixel(&arch), "{preset}: held {most} B");
         }
     }
 
@@ -495,8 +512,10 @@ mod tests {
                 .collect();
             let weights = Weights::new(&arch, &model.specular).unwrap();
             let whole = pyramid::forward(&arch, &weights, input.clone(), noisy.clone(), w, h);
-            for rows_per_push in [7, 32, h] {
+            // Both steps a frame's width may choose ([`step_rows`]).
+            for (rows_per_push, step) in [(7, 16), (7, 32), (32, 16), (h, 32)] {
                 let mut s = Stream::new(&arch, &weights, w, h);
+                s.step = step;
                 let mut got = vec![Vec::new(); 3];
                 let mut y = 0;
                 while y < h {
@@ -521,7 +540,7 @@ mod tests {
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert!(
                         bits(&got[c]) == bits(&whole[c]),
-                        "{preset}, {rows_per_push} rows a push: channel {c} differs"
+                        "{preset}, {rows_per_push} rows a push, steps of {step}: channel {c} differs"
                     );
                 }
             }
