@@ -120,7 +120,7 @@ impl Bands {
             return None;
         }
         let (_, working) = self.largest_band(denoiser)?;
-        let held_rows = (denoiser.stream_held_rows(self.width) + 2 * self.rows()).min(self.height);
+        let held_rows = (denoiser.stream_region(self.width).1 + 2 * self.rows()).min(self.height);
         let held = channels * 4 * self.width * held_rows;
         (working + held <= denoiser.options.max_memory_mb << 20).then_some(held)
     }
@@ -280,7 +280,7 @@ mod tests {
         // file's do not, and with twice the budget they do.
         let hd = Bands::new(&d512, 1920, 1080, None);
         let kept = hd.held_copies_bytes(&d512, 41).expect("1080p keeps them");
-        let held_rows = d512.stream_held_rows(hd.width) + 2 * hd.rows();
+        let held_rows = d512.stream_region(hd.width).1 + 2 * hd.rows();
         assert_eq!(kept, 41 * 4 * 1920 * held_rows);
         assert_eq!(Bands::new(&d512, 3840, 2160, None).held_copies_bytes(&d512, 41), None);
         let d1024 = d(1024).unwrap();

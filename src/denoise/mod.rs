@@ -183,16 +183,15 @@ impl Denoiser {
 
     /// What both branches' streams hold on a `width`-wide frame.
     fn stream_bytes(&self, width: usize) -> usize {
-        let (_, rw, _) = self.reach().region(0, width, width);
-        let held = self.stream_held_rows(width);
+        let (rw, held) = self.stream_region(width);
         2 * self.model.arch.region_bytes(rw, held, rw, held)
     }
 
-    /// The rows a stream down a `width`-wide frame holds at most: its region is the frame
-    /// with the network's reach each side.
-    fn stream_held_rows(&self, width: usize) -> usize {
+    /// The width of the region a stream runs down on a `width`-wide frame (the frame with
+    /// the network's reach each side), and the rows it holds at most.
+    fn stream_region(&self, width: usize) -> (usize, usize) {
         let (_, rw, _) = self.reach().region(0, width, width);
-        crate::model::stream::held_rows(&self.model.arch, rw)
+        (rw, crate::model::stream::held_rows(&self.model.arch, rw))
     }
 
     /// The threads it runs on.
@@ -260,7 +259,7 @@ impl Denoiser {
         if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
             // many as a stream holds), and a band's result of nine planes.
-            let held = self.stream_held_rows(width);
+            let (_, held) = self.stream_region(width);
             return Features::bytes(width, total_rows)
                 + self.stream_bytes(width)
                 + width * (6 * held + 9 * rows.len()) * 4;

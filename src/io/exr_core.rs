@@ -23,8 +23,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 static ENABLED: AtomicBool = AtomicBool::new(false);
 
 /// Has lossless scanline EXRs read with OpenEXRCore from now on, its chunk buffers reused
-/// (up to 64 MiB of them kept). Process-wide: for the CLI, before any file is opened. Where OpenImageIO's
-/// OpenEXRCore is not there to be found, files are read as before.
+/// (freed ones kept, up to a bound). Process-wide: for the CLI, before any file is
+/// opened. Where OpenImageIO's OpenEXRCore is not there to be found, files are read as
+/// before.
 pub fn read_lossless_exr_with_openexr_core() {
     #[cfg(target_os = "linux")]
     {
