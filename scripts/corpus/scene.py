@@ -14,7 +14,10 @@
 # A scene is drawn from the seed alone, so a seed always rebuilds the same scene. Settings
 # (`stage`): studio (ground, backdrop, area lights), outdoor (sun and Nishita sky), interior
 # (a closed room lit through openings: windows, a skylight or slits), night (tiny intense
-# lamps and spots, emissive bulbs, glass for caustics). Objects: primitives and displaced or
+# lamps and spots, emissive bulbs, glass for caustics). Seeds from SUN_PATCH_SEEDS on build
+# the sun-patch series instead: closed rooms lit by a sun shaft through a small skylight or
+# slits in the wall facing the sun, under a dim sky and no lamp, so that at a few samples
+# most of the room is dark, sparse indirect light beside a hard sun patch. Objects: primitives and displaced or
 # subdivided meshes with Principled materials on procedural textures, glass, metals and
 # rough glossy surfaces. Cameras are random; a share gets thin-lens defocus.
 #
@@ -33,6 +36,10 @@ from mathutils import Vector
 
 WIDTH, HEIGHT = 320, 180
 STAGES = ("studio", "outdoor", "interior", "night")
+# The first seed of the sun-patch series; the seeds below it keep the four stages above.
+SUN_PATCH_SEEDS = 100000
+# The sun's azimuth facing each wall of a room (+y, -y, +x, -x), as `sky` turns it.
+WALL_AZIMUTH = (math.pi / 2, -math.pi / 2, 0.0, math.pi)
 
 
 def setup_render(scene):
@@ -330,7 +337,8 @@ class Builder:
         self.sky(r.uniform(0.05, 1.3), r.uniform(0, 2 * math.pi), r.uniform(0.05, 0.6), 10 ** r.uniform(0, 1))
         return extent
 
-    def interior(self):
+    def interior(self, sun_patch=False):
+        """The room; `sun_patch` draws the sun-patch series' openings and light."""
         r = self.rng
         w, d, h = r.uniform(4, 9), r.uniform(4, 9), r.uniform(2.5, 4)
         t = 0.2
@@ -343,8 +351,8 @@ class Builder:
                  self.box((0, -d / 2 - t / 2, h / 2), (w + 2 * t, t, h), kind=wall),
                  self.box((w / 2 + t / 2, 0, h / 2), (t, d, h), kind=wall),
                  self.box((-w / 2 - t / 2, 0, h / 2), (t, d, h), kind=wall)]
-        opening = r.choice(["window", "window", "skylight", "slits"])
-        cutters = []
+        opening = r.choice(["skylight", "slits"] if sun_patch else ["window", "window", "skylight", "slits"])
+        cutters, wall = [], None
         if opening == "window":
             for _ in range(r.randint(1, 2)):
                 i = r.randrange(4)
@@ -358,10 +366,10 @@ class Builder:
                     dims = (t * 3, ow, oh)
                 cutters.append((walls[i], loc, dims))
         elif opening == "skylight":
-            s = r.uniform(0.5, 1.5)
+            s = r.uniform(0.4, 1.0) if sun_patch else r.uniform(0.5, 1.5)
             cutters.append((ceiling, (r.uniform(-w / 4, w / 4), r.uniform(-d / 4, d / 4), h + t / 2), (s, s, t * 3)))
         else:
-            i = r.randrange(4)
+            i = wall = r.randrange(4)
             for k in range(r.randint(1, 3)):
                 z = r.uniform(0.8, h - 0.3)
                 dims = (r.uniform(1, 3), t * 3, r.uniform(0.03, 0.1)) if i < 2 else (t * 3, r.uniform(1, 3), r.uniform(0.03, 0.1))
@@ -377,8 +385,14 @@ class Builder:
             c.hide_viewport = True
         self.info["opening"] = opening
         self.scatter(r.randint(3, 7), min(w, d) / 2 - 0.6)
-        self.sky(r.uniform(0.15, 1.3), r.uniform(0, 2 * math.pi), r.uniform(0.3, 1.5), 10 ** r.uniform(0.3, 1.6))
-        if r.random() < 0.3:  # a lamp inside too
+        if not sun_patch:
+            self.sky(r.uniform(0.15, 1.3), r.uniform(0, 2 * math.pi), r.uniform(0.3, 1.5), 10 ** r.uniform(0.3, 1.6))
+        elif wall is None:  # high sun, so that the skylight's shaft lands on the floor
+            self.sky(r.uniform(0.8, 1.4), r.uniform(0, 2 * math.pi), r.uniform(0.05, 0.4), 10 ** r.uniform(1, 2))
+        else:  # low sun facing the slits' wall
+            self.sky(r.uniform(0.15, 0.6), WALL_AZIMUTH[wall] + r.uniform(-0.4, 0.4), r.uniform(0.05, 0.4),
+                     10 ** r.uniform(1, 2))
+        if not sun_patch and r.random() < 0.3:  # a lamp inside too
             self.light("POINT", (r.uniform(-w / 3, w / 3), r.uniform(-d / 3, d / 3), h - 0.3),
                        10 ** r.uniform(1, 2.3), size=r.uniform(0.02, 0.2), colour=self.warm())
         self.info["room"] = [round(w, 2), round(d, 2), round(h, 2)]
@@ -421,7 +435,7 @@ class Builder:
         self.scene.collection.objects.link(cam)
         self.scene.camera = cam
         target = Vector((r.uniform(-extent, extent) * 0.4, r.uniform(-extent, extent) * 0.4, r.uniform(0.1, 0.8)))
-        if stage == "interior":
+        if stage in ("interior", "sunpatch"):
             dist = r.uniform(0.5, 1.0) * extent
             az = r.uniform(0, 2 * math.pi)
             loc = Vector((dist * math.cos(az), dist * math.sin(az), r.uniform(0.6, height - 0.4)))
@@ -446,11 +460,14 @@ class Builder:
                                "fstop": round(data.dof.aperture_fstop, 2) if dof else None}
 
     def build(self):
-        stage = STAGES[self.seed % len(STAGES)] if self.rng.random() < 0.5 else self.rng.choice(STAGES)
+        if self.seed >= SUN_PATCH_SEEDS:
+            stage = "sunpatch"
+        else:
+            stage = STAGES[self.seed % len(STAGES)] if self.rng.random() < 0.5 else self.rng.choice(STAGES)
         self.info["stage"] = stage
         height = None
-        if stage == "interior":
-            extent, height = self.interior()
+        if stage in ("interior", "sunpatch"):
+            extent, height = self.interior(sun_patch=stage == "sunpatch")
         else:
             extent = getattr(self, stage)()
         self.camera(stage, extent, height)

@@ -28,11 +28,7 @@ impl Bounds {
     /// Rows of features beyond a band's that its bounds read, beyond those its features
     /// themselves need ([`crate::features::CONTEXT`]).
     pub(crate) fn context(arch: &Architecture) -> usize {
-        match (arch.diffuse_bound, arch.variances) {
-            (None, _) => 0,
-            (Some(_), Variances::File) => CEILING_RADIUS,
-            (Some(_), Variances::Spatial) => SPARSE_RADIUS,
-        }
+        arch.diffuse_bound.map_or(0, |_| SPARSE_RADIUS)
     }
 }
 
@@ -99,30 +95,36 @@ const SIMILAR_NORMAL: f32 = 0.6;
 /// and their noisy values (d̃, mean of the channels) differ by at most this many
 /// standard errors of the difference.
 const SIMILAR_ERRORS: f32 = 2.0;
-/// A ceiling only where at least this share of the window's pixels saw light: where
-/// fewer did, the light is sparse (a room lit through a slit, at a few samples) and the
-/// window's samples say too little of how bright it is.
+/// A ceiling from the 7×7 window only where at least this share of its pixels saw light:
+/// where fewer did, the light is sparse (a room lit through a slit, at a few samples) and
+/// the window's samples say too little of how bright it is.
 const LIT_SHARE: f32 = 0.5;
-/// On spatial variance estimates, a pixel whose 7×7 window is sparse gets its ceiling from
-/// a window this wide each side instead (15×15),
+/// A pixel whose 7×7 window is sparse gets its ceiling from a window this wide each side
+/// instead (15×15),
 pub(crate) const SPARSE_RADIUS: usize = 7;
 /// where at least this many of its neighbours alike in albedo and normal saw light (the
 /// mean of 8 hits is known to about a third); else none.
 const SPARSE_HITS: f32 = 8.0;
+/// On per-pixel variances, the wide window's margin is this share of the 7×7 window's
+/// (7/15): its similar mean is over about (15/7)² as many pixels, so its standard error is
+/// about 7/15 as large.
+const SPARSE_ERRORS: f32 = (2 * CEILING_RADIUS + 1) as f32 / (2 * SPARSE_RADIUS + 1) as f32;
 
 /// The most the diffuse branch may make each pixel of a band
 /// ([`crate::model::Architecture::diffuse_bound`]): the mean noisy value (d̃, per channel)
 /// of its similar neighbours in a 7×7 window, plus `errors` standard errors of a pixel's
 /// mean there (from the mean of their variances). Similar: albedo and normal alike, and
 /// a noisy value within 2 standard errors of the pixel's; the pixel is always its own.
-/// None where fewer than half the window's pixels saw light.
+/// Where fewer than half the 7×7 window's pixels saw light, the same is sought in the
+/// 15×15 window with [`SPARSE_ERRORS`] the margin, if [`SPARSE_HITS`] of the pixel's
+/// neighbours alike in albedo and normal there saw light; else there is none.
 ///
 /// A model fed spatial variance estimates ([`Variances::Spatial`]: files without
 /// variances, as Blender writes them) reads one variance for the whole window instead:
-/// the median over the neighbours alike in albedo and normal. A 3×3 estimate beside an
-/// edge holds the bright side's light, so per pixel it would lift the ceiling exactly
-/// where the kernels bleed; and where the 7×7 window is sparse, the ceiling is sought in a
-/// 15×15 one ([`spatial_ceiling_row`]).
+/// the median over the neighbours alike in albedo and normal ([`spatial_ceiling_row`]). A
+/// 3×3 estimate beside an edge holds the bright side's light, so per pixel it would lift
+/// the ceiling exactly where the kernels bleed. Where its 7×7 window is sparse, all its
+/// alike neighbours in the 15×15 one count.
 ///
 /// Kernels that reach across an edge carry light from the bright side into the dark one,
 /// a band of pixels a few times brighter than the surface they sit on: the dark side's
@@ -143,7 +145,7 @@ impl DiffuseCeiling {
     /// the window's context; the window stops at the region's edges).
     fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<DiffuseCeiling> {
         let errors = arch.diffuse_bound? as f32;
-        let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+        let (w, h) = (f.width, f.height);
         let reach = Bounds::context(arch);
         let (d, var, albedo, normal) = (&f.d_tilde, &f.d_variance, &f.albedo, &f.normal);
         // The mean of d̃'s channels, on the rows the windows read only: a tiled band's
@@ -160,30 +162,31 @@ impl DiffuseCeiling {
         let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
+        let sums = |y: usize, r: usize, xs: Range<usize>| window_row_sums(add, &planes, w, h, y, r, xs);
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
-            // Sums over the window, one offset at a time along the whole row (so that the
-            // loop vectorises), each pixel's in the window's order: count of similar
-            // neighbours, their variances and d̃, the window's pixels and lit pixels.
-            let mut acc = [(); 7].map(|_| vec![0f32; w]);
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for dx in -(r as isize)..=r as isize {
-                    let (x0, x1) = ((-dx).max(0) as usize, (w as isize - dx.max(0)).max(0) as usize);
-                    if x1 > x0 {
-                        let (j0, j1) = ((x0 as isize + dx) as usize, (x1 as isize + dx) as usize);
-                        let here = planes.map(|p| &p[y * w..][x0..x1]);
-                        let there = planes.map(|p| &p[yy * w..][j0..j1]);
-                        window_sums(add, &here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
-                    }
-                }
-            }
-            let [count, variance, s0, s1, s2, pixels, lit] = &acc;
-            for x in 0..w {
+            // The pixel's similar neighbours' mean d̃ plus `errors` standard errors of a
+            // pixel's mean there, from the window `sums`.
+            let ceiling_of = |x: usize, sums: &[Vec<f32>; SUMS], errors: f32, out: &mut [f32]| {
+                let [count, variance, s0, s1, s2, ..] = sums;
                 // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
                 let count = count[x].max(1.0);
                 let reach = errors * (variance[x] / count).max(0.0).sqrt();
-                let sparse = lit[x] < LIT_SHARE * pixels[x];
-                for (c, sum) in [s0, s1, s2].into_iter().enumerate() {
-                    out[c * w + x] = if sparse { f32::INFINITY } else { sum[x] / count + reach };
+                [s0, s1, s2].into_iter().enumerate().for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
+            };
+            let dense = sums(y, CEILING_RADIUS, 0..w);
+            let sparse = |x: &usize| dense[LIT][*x] < LIT_SHARE * dense[PIXELS][*x];
+            for x in (0..w).filter(|x| !sparse(x)) {
+                ceiling_of(x, &dense, errors, out);
+            }
+            // Where the 7×7 window is sparse, the 15×15 one, on the columns from the first
+            // such pixel to the last.
+            let (Some(first), Some(last)) = ((0..w).find(sparse), (0..w).rfind(sparse)) else { return };
+            let wide = sums(y, SPARSE_RADIUS, first..last + 1);
+            for x in (first..=last).filter(sparse) {
+                if wide[HITS][x] < SPARSE_HITS {
+                    (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
+                } else {
+                    ceiling_of(x, &wide, errors * SPARSE_ERRORS, out);
                 }
             }
         });
@@ -217,26 +220,17 @@ struct Window<'a> {
 /// normal; of those, the ones whose mean d̃ is within 2 standard errors of the pixel's
 /// (√(2m)) are similar, and the ceiling is their mean d̃ plus `errors` × √m. Where under
 /// half the 7×7 window saw light, the 15×15 window's alike neighbours give it instead
-/// (their mean plus `errors` × the root of their median variance), if
-/// [`SPARSE_HITS`] of them saw light. Not vectorised (a median per pixel): only models fed
-/// spatial estimates pay for it.
+/// ([`Window::wide_ceiling`]). Not vectorised (a median per pixel): only models fed
+/// spatial estimates pay for it on every pixel.
 fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
-    let (w, f) = (win.width, win.f);
-    let (albedo, normal) = (&f.albedo, &f.normal);
-    let mut variances = Vec::with_capacity((2 * SPARSE_RADIUS + 1) * (2 * SPARSE_RADIUS + 1));
-    let mut alike = Vec::with_capacity(variances.capacity());
+    let w = win.width;
+    let (mut alike, mut variances) = (Vec::new(), Vec::new());
     for x in 0..w {
-        let i = y * w + x;
-        let is_alike = |j: usize| {
-            let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
-            alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
-        };
-        let (pixels, lit) = win.gather(x, y, CEILING_RADIUS, is_alike, &mut alike, &mut variances);
+        let (pixels, lit) = win.gather(x, y, CEILING_RADIUS, &mut alike, &mut variances);
         let ceiling = if lit < LIT_SHARE * pixels {
-            win.gather(x, y, SPARSE_RADIUS, is_alike, &mut alike, &mut variances);
-            win.sparse_ceiling(&alike, &mut variances)
+            win.wide_ceiling(x, y, &mut alike, &mut variances)
         } else {
-            win.dense_ceiling(i, &alike, &mut variances)
+            win.dense_ceiling(y * w + x, &alike, &mut variances)
         };
         for (c, v) in ceiling.into_iter().enumerate() {
             out[c * w + x] = v;
@@ -245,19 +239,16 @@ fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
 }
 
 impl Window<'_> {
-    /// The pixels of the window of half-side `r` around (`x`, `y`) that `is_alike` keeps
-    /// (into `alike`), their finite variances (into `variances`), and the window's pixel
-    /// and lit-pixel counts.
-    fn gather(
-        &self,
-        x: usize,
-        y: usize,
-        r: usize,
-        is_alike: impl Fn(usize) -> bool,
-        alike: &mut Vec<usize>,
-        variances: &mut Vec<f32>,
-    ) -> (f32, f32) {
+    /// The pixels of the window of half-side `r` around (`x`, `y`) alike the pixel there in
+    /// albedo and normal (into `alike`), their finite variances (into `variances`), and the
+    /// window's pixel and lit-pixel counts.
+    fn gather(&self, x: usize, y: usize, r: usize, alike: &mut Vec<usize>, variances: &mut Vec<f32>) -> (f32, f32) {
         let (w, var) = (self.width, &self.f.d_variance);
+        let (albedo, normal, i) = (&self.f.albedo, &self.f.normal, y * w + x);
+        let is_alike = |j: usize| {
+            let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
+            alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
+        };
         let (mut pixels, mut lit) = (0f32, 0f32);
         alike.clear();
         variances.clear();
@@ -295,16 +286,18 @@ impl Window<'_> {
         sum.map(|s| s / count.max(1.0) + self.errors * m.sqrt())
     }
 
-    /// The ceiling from all of `alike` (a sparse pixel's wide window); none where fewer
-    /// than [`SPARSE_HITS`] of them saw light.
-    fn sparse_ceiling(&self, alike: &[usize], variances: &mut [f32]) -> [f32; 3] {
+    /// The ceiling of a pixel (`x`, `y`) whose 7×7 window is sparse: from all its alike
+    /// neighbours in the 15×15 window, their mean d̃ plus `errors` × the root of their
+    /// median variance; none where fewer than [`SPARSE_HITS`] of them saw light.
+    fn wide_ceiling(&self, x: usize, y: usize, alike: &mut Vec<usize>, variances: &mut Vec<f32>) -> [f32; 3] {
+        self.gather(x, y, SPARSE_RADIUS, alike, variances);
         let hits = alike.iter().filter(|&&j| self.mean[j] != 0.0).count() as f32;
         let m = median(variances);
         if hits < SPARSE_HITS || m.is_nan() {
             return [f32::INFINITY; 3];
         }
         let mut sum = [0f32; 3];
-        for &j in alike {
+        for &j in &*alike {
             (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
         }
         sum.map(|s| s / alike.len() as f32 + self.errors * m.sqrt())
@@ -328,15 +321,54 @@ fn median(v: &mut [f32]) -> f32 {
     *v.select_nth_unstable_by(half, f32::total_cmp).1
 }
 
+/// How many sums [`window_row_sums`] keeps per pixel, and where the counts of alike
+/// neighbours that saw light, of the window's pixels and of its lit pixels are among them.
+const SUMS: usize = 8;
+const HITS: usize = 5;
+const PIXELS: usize = 6;
+const LIT: usize = 7;
+
+/// The sums of [`DiffuseCeiling`] over the window of half-side `r` around each pixel of
+/// columns `xs` of row `y` (elsewhere 0), from `planes` (mean d̃, its variance, d̃ RGB,
+/// albedo RGB, normal XYZ) of a `w` × `h` region: count of similar neighbours, their
+/// variances and d̃ RGB, the alike neighbours that saw light, the window's pixels and lit
+/// pixels. One offset at a time along the row, so that the loop vectorises; each pixel's
+/// in the window's order.
+fn window_row_sums(
+    add: AddSimilar,
+    planes: &[&[f32]; 11],
+    w: usize,
+    h: usize,
+    y: usize,
+    r: usize,
+    xs: Range<usize>,
+) -> [Vec<f32>; SUMS] {
+    let mut acc = [(); SUMS].map(|_| vec![0f32; w]);
+    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+        for dx in -(r as isize)..=r as isize {
+            // The columns x of `xs` whose neighbour x + dx is inside the region.
+            let x0 = xs.start.max((-dx).max(0) as usize);
+            let x1 = xs.end.min((w as isize - dx.max(0)).max(0) as usize);
+            if x1 > x0 {
+                let (j0, j1) = ((x0 as isize + dx) as usize, (x1 as isize + dx) as usize);
+                let here = planes.map(|p| &p[y * w..][x0..x1]);
+                let there = planes.map(|p| &p[yy * w..][j0..j1]);
+                window_sums(add, &here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
+            }
+        }
+    }
+    acc
+}
+
 /// Adds, for each pixel of `here` (planes: mean d̃, its variance, d̃ RGB, albedo RGB,
 /// normal XYZ), what its neighbour at the same place in `there` brings to [`DiffuseCeiling`]'s
 /// sums `acc` (see there), with `add` ([`add_similar_avx2_or_not`], chosen once per
 /// ceiling). Branch-free, so that it vectorises.
-fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; 7]) {
+fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; SUMS]) {
     let n = here[0].len();
     let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
     let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
-    let [count, variance, s0, s1, s2, pixels, lit] = acc.each_mut().map(|a| &mut a[..n]);
+    let [count, variance, s0, s1, s2, hits, pixels, lit] = acc.each_mut().map(|a| &mut a[..n]);
     add(
         [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
         mj,
@@ -347,6 +379,7 @@ fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: 
         count,
         variance,
         [s0, s1, s2],
+        hits,
     );
     for (k, p) in pixels.iter_mut().enumerate() {
         *p += 1.0;
@@ -356,15 +389,25 @@ fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: 
 
 /// The similarity test and sums of [`window_sums`]: AVX2 where the CPU has it (twice as
 /// many lanes), else as compiled.
-type AddSimilar =
-    fn([&[f32]; 8], &[f32], &[f32], [&[f32]; 3], [&[f32]; 3], [&[f32]; 3], &mut [f32], &mut [f32], [&mut [f32]; 3]);
+type AddSimilar = fn(
+    [&[f32]; 8],
+    &[f32],
+    &[f32],
+    [&[f32]; 3],
+    [&[f32]; 3],
+    [&[f32]; 3],
+    &mut [f32],
+    &mut [f32],
+    [&mut [f32]; 3],
+    &mut [f32],
+);
 
 fn add_similar_avx2_or_not() -> AddSimilar {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        return |a, b, c, d, e, f, g, h, i| {
+        return |a, b, c, d, e, f, g, h, i, j| {
             // SAFETY: AVX2 and FMA are available (detected).
-            unsafe { add_similar_avx2(a, b, c, d, e, f, g, h, i) }
+            unsafe { add_similar_avx2(a, b, c, d, e, f, g, h, i, j) }
         };
     }
     add_similar
@@ -387,8 +430,9 @@ unsafe fn add_similar_avx2(
     count: &mut [f32],
     variance: &mut [f32],
     s: [&mut [f32]; 3],
+    hits: &mut [f32],
 ) {
-    add_similar(here, mj, vj, d, a, n, count, variance, s)
+    add_similar(here, mj, vj, d, a, n, count, variance, s, hits)
 }
 
 /// The similarity test and sums of [`window_sums`]. Every row it writes is a parameter of
@@ -406,13 +450,16 @@ fn add_similar(
     count: &mut [f32],
     variance: &mut [f32],
     [s0, s1, s2]: [&mut [f32]; 3],
+    hits: &mut [f32],
 ) {
     let errors2 = SIMILAR_ERRORS * SIMILAR_ERRORS;
     for k in 0..count.len() {
         let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
         let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
         let e = mj[k] - mi[k];
-        let similar = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2) & (e * e <= errors2 * (vj[k] + vi[k]));
+        let alike = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2);
+        hits[k] += if alike & (mj[k] != 0.0) { 1.0 } else { 0.0 };
+        let similar = alike & (e * e <= errors2 * (vj[k] + vi[k]));
         let s = if similar { 1.0 } else { 0.0 };
         count[k] += s;
         variance[k] += s * vj[k];
@@ -535,7 +582,7 @@ mod tests {
     }
 
     #[test]
-    fn a_noisy_surface_is_filled_and_sparse_light_is_not_bounded() {
+    fn a_noisy_surface_is_filled_and_light_too_sparse_to_measure_is_not_bounded() {
         // Two pixels in three got one bright sample (0.4, variance 0.05): a dark one among
         // them may be filled to its neighbours' mean and beyond.
         let hit = |i: usize| i % 3 != 2;
@@ -543,35 +590,67 @@ mod tests {
         let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.5; 36]);
         c.apply(&mut d_hat);
         assert!(d_hat.iter().flatten().all(|&v| v == 0.5), "{d_hat:?}");
-        // One pixel in 12 lit: too few to say how bright the rest is.
+        // One pixel in 12 lit, 7 in the frame: too few to say how bright the rest is.
         let hit = |i: usize| i.is_multiple_of(12);
         let c = ceiling(0..7, |i| if hit(i) { 0.4 } else { 0.0 }, |i| if hit(i) { 0.05 } else { 0.0 }, 0..7);
         assert!(c.ceiling.iter().all(|v| v.is_infinite()));
     }
 
     #[test]
-    fn on_spatial_variances_sparse_light_is_bounded_by_a_wider_window_where_it_holds_enough_hits() {
-        // One pixel in `every` got a sample (0.4; its 3×3 estimate 0.05, the rest 0).
-        let sparse = |every: usize| {
-            let hit = move |i: usize| i.is_multiple_of(every);
-            ceiling_fed(
-                Variances::Spatial,
-                0..20,
-                move |i| if hit(i) { 0.4 } else { 0.0 },
-                move |i| if hit(i) { 0.05 } else { 0.0 },
-                0..20,
-            )
+    fn sparse_light_is_bounded_by_a_wider_window_where_it_holds_enough_hits() {
+        // One pixel in `every` got a sample (0.4; its variance, or its 3×3 estimate, 0.05;
+        // the rest 0).
+        for variances in [Variances::File, Variances::Spatial] {
+            let sparse = |every: usize| {
+                let hit = move |i: usize| i.is_multiple_of(every);
+                ceiling_fed(
+                    variances,
+                    0..20,
+                    move |i| if hit(i) { 0.4 } else { 0.0 },
+                    move |i| if hit(i) { 0.05 } else { 0.0 },
+                    0..20,
+                )
+            };
+            // One in four: under half of a 7×7 window saw light, so the 15×15 window's 8+
+            // hits give the ceiling, where the kernels of a sunlit patch nearby carry 1.8:
+            // their mean 0.1, plus 2 × 7/15 × the root of the mean variance of the similar
+            // ones (the hits are within 2 errors of the dark pixels: all of them, 0.0125),
+            // or 2 × the root of the median variance of the alike ones (0) on spatial
+            // estimates.
+            let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 240]);
+            sparse(4).apply(&mut d_hat);
+            let middle = 10 * 12 + 6;
+            let want = if variances == Variances::File { 0.1 + 2.0 * 7.0 / 15.0 * 0.0125f32.sqrt() } else { 0.1 };
+            assert!((d_hat[0][middle] - want).abs() < 0.02, "{variances:?}: {}", d_hat[0][middle]);
+            // One pixel in 48 (every fourth row's first pixel): at most 4 hits in a 15×15
+            // window, too few: no ceiling.
+            let c = sparse(48);
+            assert!(c.ceiling.iter().all(|v| v.is_infinite()), "{variances:?}");
+        }
+    }
+
+    #[test]
+    fn a_thin_sunlit_stripe_keeps_its_light_and_the_dark_beside_it_gets_none() {
+        // A stripe of sunlight across row 10 (2.0, well sampled: variance 0.01) on a dim
+        // surface where one pixel in four got a sample (0.4, variance 0.05): every 7×7
+        // window is sparse. The kernels keep the stripe's 2.0 and carry 1.0 beside it.
+        let stripe = |i: usize| i / 12 == 10;
+        // (value, variance) of pixel i.
+        let pixel = move |i: usize| match (stripe(i), i.is_multiple_of(4)) {
+            (true, _) => (2.0, 0.01),
+            (false, true) => (0.4, 0.05),
+            (false, false) => (0.0, 0.0),
         };
-        // One in four: under half of a 7×7 window saw light, so the 15×15 window's 8+ hits
-        // give the ceiling, their mean 0.1 (the median variance is 0).
-        let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 240]);
-        sparse(4).apply(&mut d_hat);
-        let middle = 10 * 12 + 6;
-        assert!((d_hat[0][middle] - 0.1).abs() < 0.02, "{}", d_hat[0][middle]);
-        // One pixel in 48 (every fourth row's first pixel): at most 4 hits in a 15×15
-        // window, too few: no ceiling.
-        let c = sparse(48);
-        assert!(c.ceiling.iter().all(|v| v.is_infinite()));
+        let c = ceiling(0..20, |i| pixel(i).0, |i| pixel(i).1, 0..20);
+        let mut d_hat: [Vec<f32>; 3] =
+            std::array::from_fn(|_| (0..240).map(|i| if stripe(i) { 2.0 } else { 1.0 }).collect());
+        c.apply(&mut d_hat);
+        // The stripe's similar neighbours are the stripe: its ceiling is 2.0 + 2 × 7/15 × 0.1.
+        assert_eq!(d_hat[0][10 * 12 + 6], 2.0);
+        // Beside it, the stripe is not similar (2.0 is 20 errors away): the dim surface's
+        // 0.1 + 2 × 7/15 × √0.0125.
+        let beside = 12 * 12 + 6;
+        assert!((d_hat[0][beside] - 0.204).abs() < 0.01, "{}", d_hat[0][beside]);
     }
 
     #[test]
@@ -580,7 +659,8 @@ mod tests {
         let v = |i: usize| ((i * 104_729) % 5) as f32 * 0.01;
         // Sparse on the left (one pixel in four lit), dense on the right.
         let d = |i: usize| if i % 12 < 6 && !i.is_multiple_of(4) { 0.0 } else { d(i) };
-        for (variances, radius) in [(Variances::File, CEILING_RADIUS), (Variances::Spatial, SPARSE_RADIUS)] {
+        for variances in [Variances::File, Variances::Spatial] {
+            let radius = SPARSE_RADIUS;
             let whole = ceiling_fed(variances, 0..24, d, v, 0..24);
             for band in [0..4usize, 9..12, 20..24] {
                 let context = band.start.saturating_sub(radius)..(band.end + radius).min(24);
@@ -597,7 +677,7 @@ mod tests {
         let context = crate::features::CONTEXT;
         for (bound, variances, context) in [
             (None, Variances::File, context),
-            (Some(2), Variances::File, context + CEILING_RADIUS),
+            (Some(2), Variances::File, context + SPARSE_RADIUS),
             (None, Variances::Spatial, context),
             (Some(2), Variances::Spatial, context + SPARSE_RADIUS),
         ] {
