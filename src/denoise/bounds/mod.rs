@@ -1,14 +1,17 @@
 //! How far each branch may move a pixel from what the noisy frame shows, applied when the
 //! branches are recomposed ([`super::recompose`]): the specular branch by the pixel's own
-//! standard error ([`NoisySpecular`]), the diffuse branch by its similar neighbours'
-//! ([`DiffuseCeiling`]). Both are computed from the features of a band's rows, so the
+//! standard error, or its alike neighbours' where their window is noisy
+//! ([`NoisySpecular`]), the diffuse branch by its similar neighbours' ([`DiffuseCeiling`]). Both are computed from the features of a band's rows, so the
 //! streamed, tiled and whole-frame paths bound alike.
 
-use crate::features::{Branch, Features, specular_of_log};
-use crate::kernel;
+use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 use std::ops::Range;
+
+mod specular;
+
+pub(crate) use specular::NoisySpecular;
 
 /// The bounds of a model over rows of a band ([`Architecture::specular_bound`],
 /// [`Architecture::diffuse_bound`]); each `None` where the model has none.
@@ -28,61 +31,8 @@ impl Bounds {
     /// Rows of features beyond a band's that its bounds read, beyond those its features
     /// themselves need ([`crate::features::CONTEXT`]).
     pub(crate) fn context(arch: &Architecture) -> usize {
-        arch.diffuse_bound.map_or(0, |_| SPARSE_RADIUS)
-    }
-}
-
-/// What bounds how far the specular branch moves each pixel of a band from its noisy value
-/// ([`crate::model::Architecture::specular_bound`]): `errors` standard errors of the
-/// pixel's mean, from the features (s̃ and its delta-method variance, in the exposed
-/// radiance the network sees). A firefly, whose error is about its value, can go; a dark
-/// pixel beside it, which no sample of that light reached, cannot take its energy; a
-/// texture every sample saw keeps its detail. A value may always come down to the
-/// `fine-pairs-twice` clamp of its neighbourhood, so that an outlier the file's variance
-/// does not show (a speck added after rendering) goes too.
-pub(crate) struct NoisySpecular {
-    errors: f32,
-    /// Rows of the noisy radiance (of s̃).
-    noisy: [Vec<f32>; 3],
-    /// The variance of s̃.
-    variance: Vec<f32>,
-    /// The noisy radiance clamped to its neighbourhood's second-brightest, twice.
-    clamped: [Vec<f32>; 3],
-}
-
-impl NoisySpecular {
-    /// The bound of `arch`, if it has one, over rows `rows` of the region `f` holds (whose
-    /// rows beyond them, 2 at least where the frame goes on, are the clamp's context).
-    fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<NoisySpecular> {
-        let errors = arch.specular_bound? as f32;
-        let (w, s) = (f.width, f.colour(Branch::Specular));
-        let pixels = rows.start * w..rows.end * w;
-        let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
-        let noisy = kernel::planes::Planes::from_vec(3, w, f.height, radiance);
-        let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
-        let rows_of = |p: &kernel::planes::Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
-        Some(NoisySpecular {
-            errors,
-            noisy: rows_of(&noisy),
-            variance: f.variance(Branch::Specular)[pixels.clone()].to_vec(),
-            clamped: rows_of(&clamped),
-        })
-    }
-
-    /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
-    pub(crate) fn apply(&self, specular: &mut [Vec<f32>; 3]) {
-        for (i, v) in self.variance.iter().enumerate() {
-            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
-            // The features' delta method divided the variance by the mean of (1 + s)².
-            let m = 1.0 + noisy.iter().map(|v| v.max(0.0)).sum::<f32>() / 3.0;
-            let reach = self.errors * v.max(0.0).sqrt() * m;
-            for (c, n) in noisy.into_iter().enumerate() {
-                let down = reach.max(n - self.clamped[c][i]);
-                // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile input).
-                let out = &mut specular[c][i];
-                *out = n + (*out - n).max(-down).min(reach);
-            }
-        }
+        let diffuse = arch.diffuse_bound.map_or(0, |_| SPARSE_RADIUS);
+        diffuse.max(arch.specular_bound.map_or(0, |_| CEILING_RADIUS))
     }
 }
 
@@ -244,11 +194,7 @@ impl Window<'_> {
     /// window's pixel and lit-pixel counts.
     fn gather(&self, x: usize, y: usize, r: usize, alike: &mut Vec<usize>, variances: &mut Vec<f32>) -> (f32, f32) {
         let (w, var) = (self.width, &self.f.d_variance);
-        let (albedo, normal, i) = (&self.f.albedo, &self.f.normal, y * w + x);
-        let is_alike = |j: usize| {
-            let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
-            alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
-        };
+        let i = y * w + x;
         let (mut pixels, mut lit) = (0f32, 0f32);
         alike.clear();
         variances.clear();
@@ -257,7 +203,7 @@ impl Window<'_> {
             for (j, &v) in row.clone().zip(&var[row]) {
                 pixels += 1.0;
                 lit += if self.mean[j] != 0.0 { 1.0 } else { 0.0 };
-                if is_alike(j) {
+                if alike_pixels(self.f, i, j) {
                     alike.push(j);
                     if v >= 0.0 && v.is_finite() {
                         variances.push(v);
@@ -310,6 +256,13 @@ impl Window<'_> {
 #[inline(always)]
 fn alike_surfaces(albedo: f32, normal2: f32) -> bool {
     (albedo <= SIMILAR_ALBEDO) & (normal2 <= SIMILAR_NORMAL * SIMILAR_NORMAL)
+}
+
+/// Whether pixels `i` and `j` of `f` are alike in albedo and normal ([`alike_surfaces`]).
+fn alike_pixels(f: &Features, i: usize, j: usize) -> bool {
+    let (albedo, normal) = (&f.albedo, &f.normal);
+    let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
+    alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
 }
 
 /// The upper median of `v` (reordered); NaN when empty.
@@ -474,37 +427,6 @@ mod tests {
     use super::super::recompose;
     use super::*;
     use crate::model::Specular;
-
-    /// A bound of 2 errors over pixels of noisy radiance `noisy`, standard error `error`
-    /// and clamped value `clamped` (one value for all three channels).
-    fn bound(noisy: &[f32], error: &[f32], clamped: &[f32]) -> NoisySpecular {
-        let n = noisy.len();
-        let m = |i: usize| 1.0 + noisy[i];
-        NoisySpecular {
-            errors: 2.0,
-            noisy: std::array::from_fn(|_| noisy.to_vec()),
-            variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
-            clamped: std::array::from_fn(|_| clamped.to_vec()),
-        }
-    }
-
-    #[test]
-    fn the_specular_branch_moves_a_pixel_at_most_two_of_its_errors_but_outliers_go() {
-        // 0: a dark pixel that no sample of a light reached takes no light from its
-        //    neighbour (error 0.01: up to 0.02 more);
-        // 1: a firefly whose error is its size goes;
-        // 2: a speck the variance does not show still goes down to its clamped value;
-        // 3: a texture pixel every sample saw keeps its detail (moved 0.1 of its 0.5 asked);
-        // 4: a move within the bound is kept as it is.
-        let b = bound(&[0.05, 80.0, 500.0, 1.0, 1.0], &[0.01, 80.0, 0.1, 0.05, 0.5], &[0.05, 0.3, 0.2, 1.0, 1.0]);
-        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![2.0, 0.5, 0.2, 0.5, 1.6]);
-        b.apply(&mut out);
-        let want = [0.07, 0.5, 0.2, 0.9, 1.6];
-        for (o, w) in out[0].iter().zip(want) {
-            assert!((o - w).abs() < 1e-3 * w.max(1.0), "{:?} against {want:?}", out[0]);
-        }
-        assert_eq!(out[0], out[2]);
-    }
 
     /// The ceiling (2 errors) over rows `frame` of a 12-wide frame of one surface (albedo
     /// 0.5), whose pixel `i` (counted from the frame's top) shows d̃ `d(i)` with variance
@@ -675,23 +597,24 @@ mod tests {
     fn a_streamed_band_is_read_with_the_context_rows_its_ceiling_needs() {
         let ladder = Architecture::ladder(crate::model::Quality::Fast);
         let context = crate::features::CONTEXT;
-        for (bound, variances, context) in [
-            (None, Variances::File, context),
-            (Some(2), Variances::File, context + SPARSE_RADIUS),
-            (None, Variances::Spatial, context),
-            (Some(2), Variances::Spatial, context + SPARSE_RADIUS),
+        for (diffuse_bound, specular_bound, variances, context) in [
+            (None, None, Variances::File, context),
+            (None, Some(2), Variances::File, context + CEILING_RADIUS),
+            (Some(2), Some(2), Variances::File, context + SPARSE_RADIUS),
+            (None, None, Variances::Spatial, context),
+            (Some(2), None, Variances::Spatial, context + SPARSE_RADIUS),
         ] {
-            let model =
-                crate::model::Model::xavier(Architecture { diffuse_bound: bound, variances, ..ladder }, 1).unwrap();
-            let d = super::super::Denoiser::new(model, super::super::Options::default()).unwrap();
+            let arch = Architecture { diffuse_bound, specular_bound, variances, ..ladder };
+            let d = super::super::Denoiser::new(crate::model::Model::xavier(arch, 1).unwrap(), Default::default());
+            let d = d.unwrap();
             assert!(d.streams(640));
-            assert_eq!(d.halo(640), context, "{bound:?} {variances:?}");
+            assert_eq!(d.halo(640), context, "{diffuse_bound:?} {specular_bound:?} {variances:?}");
         }
     }
 
     #[test]
     fn a_bound_on_hostile_values_never_panics_and_stays_finite() {
-        let mut b = bound(&[1.0, 0.0, 3e38], &[f32::NAN, f32::INFINITY, 3e38], &[1.0, 0.0, 3e38]);
+        let mut b = specular::tests::bound(&[1.0, 0.0, 3e38], &[f32::NAN, f32::INFINITY, 3e38], &[1.0, 0.0, 3e38]);
         b.variance[0] = f32::NAN;
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![f32::NAN, 5.0, 1.0]);
         b.apply(&mut out);

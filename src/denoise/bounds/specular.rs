@@ -1,0 +1,192 @@
+//! The specular branch's bound: how far it may move each pixel from its noisy value.
+
+use super::{CEILING_RADIUS, alike_pixels};
+use crate::features::{Branch, Features, specular_of_log};
+use crate::kernel::planes::Planes;
+use crate::model::Architecture;
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// A 7×7 window is noisy where the median standard error of its alike pixels' means is at
+/// least this share of their mean radiance: a glossy surface at a few samples, a field of
+/// specks where each sample found the light or missed it. A smooth highlight or a texture
+/// at many samples is far below it. Chosen on our Cycles corpus: at 0.3 more specks fill
+/// at 4 samples, but some surfaces at 64 lose detail (BENCHMARKS.md).
+const NOISY_WINDOW: f32 = 0.6;
+
+/// What bounds how far the specular branch moves each pixel of a band from its noisy value
+/// ([`crate::model::Architecture::specular_bound`]): `errors` standard errors of the
+/// pixel's mean, from the features (s̃ and its delta-method variance, in the exposed
+/// radiance the network sees). A firefly, whose error is about its value, can go; a dark
+/// pixel beside it, which no sample of that light reached, cannot take its energy; a
+/// texture every sample saw keeps its detail. A value may always come down to the
+/// `fine-pairs-twice` clamp of its neighbourhood, so that an outlier the file's variance
+/// does not show (a speck added after rendering) goes too.
+///
+/// In a noisy window ([`NOISY_WINDOW`]) a pixel's own variance says little: a speck that
+/// no sample of a glossy reflection reached has none, though its neighbours show the
+/// surface is lit. There the standard error is at least the median of its alike
+/// neighbours' (albedo and normal, 7×7), so the branch may fill the specks; one firefly
+/// among dark pixels does not move that median.
+pub(crate) struct NoisySpecular {
+    pub(super) errors: f32,
+    /// Rows of the noisy radiance (of s̃).
+    pub(super) noisy: [Vec<f32>; 3],
+    /// The variance of s̃, at least its noisy window's median (see above).
+    pub(super) variance: Vec<f32>,
+    /// The noisy radiance clamped to its neighbourhood's second-brightest, twice.
+    pub(super) clamped: [Vec<f32>; 3],
+}
+
+impl NoisySpecular {
+    /// The bound of `arch`, if it has one, over rows `rows` of the region `f` holds (whose
+    /// rows beyond them, [`CEILING_RADIUS`] at least where the frame goes on, are the
+    /// windows' and the clamp's context).
+    pub(super) fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Option<NoisySpecular> {
+        let errors = arch.specular_bound? as f32;
+        let (w, s) = (f.width, f.colour(Branch::Specular));
+        let pixels = rows.start * w..rows.end * w;
+        let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
+        let noisy = Planes::from_vec(3, w, f.height, radiance);
+        let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
+        let rows_of = |p: &Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
+        Some(NoisySpecular {
+            errors,
+            variance: variance_in_noisy_windows(f, &noisy, rows),
+            noisy: rows_of(&noisy),
+            clamped: rows_of(&clamped),
+        })
+    }
+
+    /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
+    pub(crate) fn apply(&self, specular: &mut [Vec<f32>; 3]) {
+        for (i, v) in self.variance.iter().enumerate() {
+            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
+            let reach = self.errors * v.max(0.0).sqrt() * delta_scale(noisy);
+            for (c, n) in noisy.into_iter().enumerate() {
+                let down = reach.max(n - self.clamped[c][i]);
+                // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile input).
+                let out = &mut specular[c][i];
+                *out = n + (*out - n).max(-down).min(reach);
+            }
+        }
+    }
+}
+
+/// What turns the features' standard error of s̃ back into one of the radiance: the
+/// features' delta method divided the variance by the mean of (1 + s)² over the channels.
+fn delta_scale(noisy: [f32; 3]) -> f32 {
+    1.0 + noisy.iter().map(|v| v.max(0.0)).sum::<f32>() / 3.0
+}
+
+/// The variance of s̃ over rows `rows` of the region `f` holds, each pixel's at least the
+/// median of its alike neighbours' (7×7) where their window is noisy ([`NOISY_WINDOW`],
+/// judged in radiance). `noisy` is the region's radiance. Scalar (two medians per pixel).
+fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -> Vec<f32> {
+    let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+    let variance = f.variance(Branch::Specular);
+    let scale = |j: usize| delta_scale(std::array::from_fn(|c| noisy.plane(c)[j]));
+    let mut out = variance[rows.start * w..rows.end * w].to_vec();
+    out.par_chunks_mut(w).zip(rows).for_each(|(out, y)| {
+        let (mut variances, mut radiance_variances) = (Vec::new(), Vec::new());
+        for (x, out) in out.iter_mut().enumerate() {
+            let i = y * w + x;
+            variances.clear();
+            radiance_variances.clear();
+            let mut radiance = 0f32;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                let row = yy * w + x.saturating_sub(r)..yy * w + (x + r + 1).min(w);
+                for (j, &v) in row.clone().zip(&variance[row]) {
+                    if v >= 0.0 && v.is_finite() && alike_pixels(f, i, j) {
+                        let m = scale(j);
+                        variances.push(v);
+                        radiance_variances.push(v * m * m);
+                        radiance += m - 1.0;
+                    }
+                }
+            }
+            let n = variances.len() as f32;
+            // False where none is alike and finite (NaN).
+            if lower_median(&mut radiance_variances).sqrt() >= NOISY_WINDOW * radiance / n {
+                *out = out.max(lower_median(&mut variances));
+            }
+        }
+    });
+    out
+}
+
+/// The lower median of `v` (reordered); NaN when empty. Lower, as chosen: where as many
+/// neighbours are lit as dark, the upper one lifted a surface's dark texels at 64 samples.
+fn lower_median(v: &mut [f32]) -> f32 {
+    if v.is_empty() {
+        return f32::NAN;
+    }
+    *v.select_nth_unstable_by((v.len() - 1) / 2, f32::total_cmp).1
+}
+
+#[cfg(test)]
+pub(super) mod tests {
+    use super::*;
+
+    /// A bound of 2 errors over pixels of noisy radiance `noisy`, standard error `error`
+    /// and clamped value `clamped` (one value for all three channels).
+    pub(crate) fn bound(noisy: &[f32], error: &[f32], clamped: &[f32]) -> NoisySpecular {
+        let n = noisy.len();
+        let m = |i: usize| 1.0 + noisy[i];
+        NoisySpecular {
+            errors: 2.0,
+            noisy: std::array::from_fn(|_| noisy.to_vec()),
+            variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
+            clamped: std::array::from_fn(|_| clamped.to_vec()),
+        }
+    }
+
+    #[test]
+    fn the_specular_branch_moves_a_pixel_at_most_two_of_its_errors_but_outliers_go() {
+        // 0: a dark pixel that no sample of a light reached takes no light from its
+        //    neighbour (error 0.01: up to 0.02 more);
+        // 1: a firefly whose error is its size goes;
+        // 2: a speck the variance does not show still goes down to its clamped value;
+        // 3: a texture pixel every sample saw keeps its detail (moved 0.1 of its 0.5 asked);
+        // 4: a move within the bound is kept as it is.
+        let b = bound(&[0.05, 80.0, 500.0, 1.0, 1.0], &[0.01, 80.0, 0.1, 0.05, 0.5], &[0.05, 0.3, 0.2, 1.0, 1.0]);
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![2.0, 0.5, 0.2, 0.5, 1.6]);
+        b.apply(&mut out);
+        let want = [0.07, 0.5, 0.2, 0.9, 1.6];
+        for (o, w) in out[0].iter().zip(want) {
+            assert!((o - w).abs() < 1e-3 * w.max(1.0), "{:?} against {want:?}", out[0]);
+        }
+        assert_eq!(out[0], out[2]);
+    }
+
+    /// The bound (2 errors) over a 12×12 frame of one surface whose pixel `i` shows
+    /// specular radiance `s(i)` with standard error `error(i)`, all rows.
+    fn bound_of_frame(s: impl Fn(usize) -> f32, error: impl Fn(usize) -> f32) -> NoisySpecular {
+        let mut f = Features::new(&crate::features::tests::inputs(12, 12, |_| 0.0));
+        f.s_tilde = std::array::from_fn(|_| (0..144).map(|i| s(i).ln_1p()).collect());
+        f.s_variance = (0..144).map(|i| (error(i) / (1.0 + s(i))).powi(2)).collect();
+        let arch = Architecture { specular_bound: Some(2), ..Architecture::ladder(crate::model::Quality::Fast) };
+        NoisySpecular::of(&arch, &f, 0..12).unwrap()
+    }
+
+    #[test]
+    fn specks_of_a_noisy_glossy_surface_may_fill_and_dark_beside_a_lone_firefly_may_not() {
+        // A glossy surface at 4 samples: two pixels in three caught the reflection (2 ± 1),
+        // the others none (0 ± 0). A speck takes its neighbours' standard error of s̃,
+        // ln(1 + 2 ± 1) ≈ ± 1/3, so it may rise to 2 × 1/3 (asked 1).
+        let lit = |i: usize| !i.is_multiple_of(3);
+        let specks = bound_of_frame(|i| if lit(i) { 2.0 } else { 0.0 }, |i| if lit(i) { 1.0 } else { 0.0 });
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.0; 144]);
+        specks.apply(&mut out);
+        let speck = 5 * 12 + 6;
+        assert!((out[0][speck] - 2.0 / 3.0).abs() < 1e-4, "a speck stays at {}", out[0][speck]);
+        // One firefly (50 ± 50) among dark pixels that each sample saw (0.05 ± 0.01): its
+        // neighbours keep their own bound.
+        let firefly =
+            bound_of_frame(|i| if i == speck { 50.0 } else { 0.05 }, |i| if i == speck { 50.0 } else { 0.01 });
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![5.0; 144]);
+        firefly.apply(&mut out);
+        assert!((out[0][speck + 1] - 0.07).abs() < 1e-4, "the firefly's neighbour took {}", out[0][speck + 1]);
+        assert!((out[0][speck] - 5.0).abs() < 1e-4, "the firefly stays at {}", out[0][speck]);
+    }
+}
