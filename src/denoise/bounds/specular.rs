@@ -85,7 +85,13 @@ fn delta_scale(noisy: [f32; 3]) -> f32 {
 fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -> Vec<f32> {
     let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
     let variance = f.variance(Branch::Specular);
-    let scale = |j: usize| delta_scale(std::array::from_fn(|c| noisy.plane(c)[j]));
+    // Each pixel's delta-method scale, once, on the rows the windows read.
+    let read = rows.start.saturating_sub(r) * w..(rows.end + r).min(h) * w;
+    let mut scale = vec![0f32; w * h];
+    scale[read.clone()]
+        .par_iter_mut()
+        .zip(read)
+        .for_each(|(m, j)| *m = delta_scale(std::array::from_fn(|c| noisy.plane(c)[j])));
     let mut out = variance[rows.start * w..rows.end * w].to_vec();
     out.par_chunks_mut(w).zip(rows).for_each(|(out, y)| {
         let (mut variances, mut radiance_variances) = (Vec::new(), Vec::new());
@@ -96,9 +102,8 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
             let mut radiance = 0f32;
             for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
                 let row = yy * w + x.saturating_sub(r)..yy * w + (x + r + 1).min(w);
-                for (j, &v) in row.clone().zip(&variance[row]) {
+                for ((j, &v), &m) in row.clone().zip(&variance[row.clone()]).zip(&scale[row]) {
                     if v >= 0.0 && v.is_finite() && alike_pixels(f, i, j) {
-                        let m = scale(j);
                         variances.push(v);
                         radiance_variances.push(v * m * m);
                         radiance += m - 1.0;
