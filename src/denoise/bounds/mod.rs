@@ -1,8 +1,9 @@
 //! How far each branch may move a pixel from what the noisy frame shows, applied when the
 //! branches are recomposed ([`super::recompose`]): the specular branch by the pixel's own
 //! standard error, or its alike neighbours' where their window is noisy
-//! ([`NoisySpecular`]), the diffuse branch by its similar neighbours' ([`DiffuseCeiling`]). Both are computed from the features of a band's rows, so the
-//! streamed, tiled and whole-frame paths bound alike.
+//! ([`NoisySpecular`]), the diffuse branch by its similar neighbours' ([`DiffuseCeiling`]).
+//! Both are computed from the features of a band's rows, so the streamed, tiled and
+//! whole-frame paths bound alike.
 
 use crate::features::Features;
 use crate::model::{Architecture, Variances};
