@@ -12,6 +12,7 @@
 #
 #   scripts/cycles-corpus.sh DIR FIRST_SEED COUNT        # e.g. target/cycles-corpus 0 200
 #   scripts/cycles-corpus.sh DIR 100000 16               # the sun-patch series (scene.py)
+#   scripts/cycles-corpus.sh DIR 110000 16               # the aimed sun-patch series
 #   REF_SPP=1024 SPPS=4,16,64 NICE=10 scripts/cycles-corpus.sh …
 #
 # Resumable: a scene is done when its line is in corpus.jsonl; an interrupted scene is

@@ -45,8 +45,14 @@ const MODELS: [&str; 4] = ["compact", "fast", "balanced", "high"];
 /// (within 1 % before): on this 96×64 frame the slit's light is a few rare hits, and the
 /// ceiling stops their spread into dim pixels whose 16 samples saw none; its relMSE still
 /// falls (0.837 → 0.826), and on 320×180 slit frames the mean moves under 0.1 %
-/// (models/README.md). A frame not listed must stay within 1 %, and a
-/// listed one must not move further.
+/// (models/README.md). Then the ceiling's 7×7 margin came from the similar neighbours'
+/// median variance rather than their mean (2026-12-04, fifteenth session): interior −3.51
+/// / −1.75 %, corridor −1.00 % at 4 spp, slit −7.25 / −17.14 %. The light it removes was
+/// misplaced: on a slit frame rendered as this one (`kpcn render --family slit --seed 101
+/// --resolution 96x64`, against a 4096-spp reference) relMSE falls 1.289 → 0.743 and 0.524
+/// → 0.240 at 4 / 16 spp while the mean falls 3.4 → 11.8 % and 4.9 → 15.2 % below the
+/// noisy one's (BENCHMARKS.md). A frame not listed must stay within 1 %, and a listed one
+/// must not move further.
 const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("compact", "cornell", 4, 0.017),
     ("compact", "interior", 4, 0.023),
@@ -72,15 +78,16 @@ const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("fast", "slit", 4, 0.301),
     ("fast", "slit", 16, 0.243),
     ("balanced", "cornell", 4, 0.019),
-    ("balanced", "interior", 4, 0.027),
-    ("balanced", "interior", 16, 0.017),
+    ("balanced", "interior", 4, 0.036),
+    ("balanced", "interior", 16, 0.018),
     ("balanced", "product", 4, 0.022),
     ("balanced", "product", 16, 0.011),
     ("balanced", "glass", 4, 0.014),
     ("balanced", "firefly", 4, 0.083),
     ("balanced", "firefly", 16, 0.104),
-    ("balanced", "slit", 4, 0.035),
-    ("balanced", "slit", 16, 0.055),
+    ("balanced", "corridor", 4, 0.011),
+    ("balanced", "slit", 4, 0.073),
+    ("balanced", "slit", 16, 0.172),
     ("high", "cornell", 4, 0.023),
     ("high", "cornell", 16, 0.013),
     ("high", "interior", 4, 0.052),

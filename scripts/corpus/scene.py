@@ -17,9 +17,12 @@
 # lamps and spots, emissive bulbs, glass for caustics). Seeds from SUN_PATCH_SEEDS on build
 # the sun-patch series instead: closed rooms lit by a sun shaft through a small skylight or
 # slits in the wall facing the sun, under a dim sky and no lamp, so that at a few samples
-# most of the room is dark, sparse indirect light beside a hard sun patch. Objects: primitives and displaced or
-# subdivided meshes with Principled materials on procedural textures, glass, metals and
-# rough glossy surfaces. Cameras are random; a share gets thin-lens defocus.
+# most of the room is dark, sparse indirect light beside a hard sun patch. From AIMED_SEEDS
+# on, the series draws a stronger sun and aims the camera along the shaft (from the opening
+# to where the sun lands), so the patch, the opening and the dark beside them are in view.
+# Objects: primitives and displaced or subdivided meshes with Principled materials on
+# procedural textures, glass, metals and rough glossy surfaces. Cameras are random; a share
+# gets thin-lens defocus.
 #
 # The render protocol is the dev set's (../shared/data/cycles-dev/README.md): CPU, 2 threads,
 # 320x180, PMJ, Blackman-Harris 1.5 px, 8 bounces, caustics on, no clamping, Filter Glossy 0,
@@ -38,6 +41,8 @@ WIDTH, HEIGHT = 320, 180
 STAGES = ("studio", "outdoor", "interior", "night")
 # The first seed of the sun-patch series; the seeds below it keep the four stages above.
 SUN_PATCH_SEEDS = 100000
+# The first seed of the aimed sun-patch series (a stronger sun, the camera on the shaft).
+AIMED_SEEDS = 110000
 # The sun's azimuth facing each wall of a room (+y, -y, +x, -x), as `sky` turns it.
 WALL_AZIMUTH = (math.pi / 2, -math.pi / 2, 0.0, math.pi)
 
@@ -90,6 +95,8 @@ class Builder:
         self.rng = random.Random(seed)
         self.seed = seed
         self.info = {"seed": seed, "objects": [], "lights": []}
+        # The aimed series' sun shaft: (its opening, where it lands), for the camera.
+        self.shaft = None
         self.scene = bpy.context.scene
 
     # ---- materials -------------------------------------------------------------------
@@ -387,16 +394,39 @@ class Builder:
         self.scatter(r.randint(3, 7), min(w, d) / 2 - 0.6)
         if not sun_patch:
             self.sky(r.uniform(0.15, 1.3), r.uniform(0, 2 * math.pi), r.uniform(0.3, 1.5), 10 ** r.uniform(0.3, 1.6))
-        elif wall is None:  # high sun, so that the skylight's shaft lands on the floor
-            self.sky(r.uniform(0.8, 1.4), r.uniform(0, 2 * math.pi), r.uniform(0.05, 0.4), 10 ** r.uniform(1, 2))
-        else:  # low sun facing the slits' wall
-            self.sky(r.uniform(0.15, 0.6), WALL_AZIMUTH[wall] + r.uniform(-0.4, 0.4), r.uniform(0.05, 0.4),
-                     10 ** r.uniform(1, 2))
+        else:
+            # Drawn in the order the calls before AIMED_SEEDS drew them, so those seeds keep
+            # their scenes.
+            aimed = self.seed >= AIMED_SEEDS
+            if wall is None:  # high sun, so that the skylight's shaft lands on the floor
+                elevation, azimuth = r.uniform(0.8, 1.4), r.uniform(0, 2 * math.pi)
+            else:  # low sun facing the slits' wall
+                elevation, azimuth = r.uniform(0.15, 0.6), WALL_AZIMUTH[wall] + r.uniform(-0.4, 0.4)
+            strength = r.uniform(0.05, 0.4)
+            sun = 10 ** (r.uniform(1.5, 2.5) if aimed else r.uniform(1, 2))
+            self.sky(elevation, azimuth, strength, sun)
+            if aimed:
+                self.shaft = self.sun_landing(cutters[0][1], elevation, azimuth, w, d, h)
         if not sun_patch and r.random() < 0.3:  # a lamp inside too
             self.light("POINT", (r.uniform(-w / 3, w / 3), r.uniform(-d / 3, d / 3), h - 0.3),
                        10 ** r.uniform(1, 2.3), size=r.uniform(0.02, 0.2), colour=self.warm())
         self.info["room"] = [round(w, 2), round(d, 2), round(h, 2)]
         return min(w, d) / 2 - 0.5, h
+
+    @staticmethod
+    def sun_landing(opening, elevation, azimuth, w, d, h):
+        """Where the sun entering at `opening` (a point on the ceiling or a wall) first
+        lands inside the room: (the opening, the landing point)."""
+        o = Vector((opening[0], opening[1], min(opening[2], h)))
+        # The sun sits towards (cos e cos a, cos e sin a, sin e) (`sky`); light travels away.
+        ray = -Vector((math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth),
+                       math.sin(elevation)))
+        hits = [o.z / -ray.z]
+        for i, half in ((0, w / 2), (1, d / 2)):
+            if abs(ray[i]) > 1e-6:
+                hits.append((math.copysign(half, ray[i]) - o[i]) / ray[i])
+        t = min(x for x in hits if x > 1e-3)
+        return o, o + ray * t
 
     def night(self):
         r = self.rng
@@ -440,6 +470,13 @@ class Builder:
             az = r.uniform(0, 2 * math.pi)
             loc = Vector((dist * math.cos(az), dist * math.sin(az), r.uniform(0.6, height - 0.4)))
             target = Vector((-loc.x * r.uniform(0.3, 1), -loc.y * r.uniform(0.3, 1), r.uniform(0.3, height - 0.5)))
+            if self.shaft:  # the aimed series: a point on the shaft
+                opening, landing = self.shaft
+                target = opening.lerp(landing, r.uniform(0.2, 1.0))
+                target += Vector((r.uniform(-0.3, 0.3), r.uniform(-0.3, 0.3), r.uniform(-0.3, 0.3)))
+                if (target - loc).length < 1.0:  # too close to frame the patch: the far side
+                    loc.x, loc.y = -loc.x, -loc.y
+                self.info["shaft"] = [[round(v, 2) for v in opening], [round(v, 2) for v in landing]]
             data.lens = r.uniform(14, 30)
         else:
             dist = extent * r.uniform(1.5, 3.5) * (data.lens / 35) ** 0.7

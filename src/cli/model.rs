@@ -175,7 +175,7 @@ pub fn describe(m: &Model) {
                 Some(k) => println!(
                     "  diffuse       brightened at most {k} standard errors past its similar neighbours' noisy mean{}",
                     match a.variances {
-                        kpcn::model::Variances::File => "",
+                        kpcn::model::Variances::File => " (errors from their median variance)",
                         kpcn::model::Variances::Spatial => " (errors from the median variance of the neighbours alike)",
                     }
                 ),

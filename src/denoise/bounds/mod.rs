@@ -64,11 +64,16 @@ const SPARSE_ERRORS: f32 = (2 * CEILING_RADIUS + 1) as f32 / (2 * SPARSE_RADIUS 
 /// The most the diffuse branch may make each pixel of a band
 /// ([`crate::model::Architecture::diffuse_bound`]): the mean noisy value (d̃, per channel)
 /// of its similar neighbours in a 7×7 window, plus `errors` standard errors of a pixel's
-/// mean there (from the mean of their variances). Similar: albedo and normal alike, and
+/// mean there (the root of their median variance). Similar: albedo and normal alike, and
 /// a noisy value within 2 standard errors of the pixel's; the pixel is always its own.
-/// Where fewer than half the 7×7 window's pixels saw light, the same is sought in the
-/// 15×15 window with [`SPARSE_ERRORS`] the margin, if [`SPARSE_HITS`] of the pixel's
-/// neighbours alike in albedo and normal there saw light; else there is none.
+/// The median, not the mean: a few single-sample hits among them (each with an error about
+/// its value, so similar to dark and lit pixels alike) would widen a mean's margin enough
+/// to let the light of a sun patch beside the pixel through. Where fewer than half the
+/// 7×7 window's pixels saw light, the same is sought in the 15×15 window with
+/// [`SPARSE_ERRORS`] times the root of their mean variance the margin, if [`SPARSE_HITS`]
+/// of the pixel's neighbours alike in albedo and normal there saw light; else there is
+/// none. (There most similar pixels are dark, so a median margin is nearly none: it took
+/// the light of sparse sun stripes, BENCHMARKS.md.)
 ///
 /// A model fed spatial variance estimates ([`Variances::Spatial`]: files without
 /// variances, as Blender writes them) reads one variance for the whole window instead:
@@ -110,24 +115,25 @@ impl DiffuseCeiling {
             ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| spatial_ceiling_row(&window, y, out));
             return Some(DiffuseCeiling { ceiling, width: w });
         }
+        let window = Window { width: w, height: h, errors, mean: &mean, f };
         let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         let sums = |y: usize, r: usize, xs: Range<usize>| window_row_sums(add, &planes, w, h, y, r, xs);
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
-            // The pixel's similar neighbours' mean d̃ plus `errors` standard errors of a
-            // pixel's mean there, from the window `sums`.
-            let ceiling_of = |x: usize, sums: &[Vec<f32>; SUMS], errors: f32, out: &mut [f32]| {
-                let [count, variance, s0, s1, s2, ..] = sums;
+            // The pixel's similar neighbours' mean d̃ (from the window `sums`) plus `reach`.
+            let ceiling_of = |x: usize, sums: &[Vec<f32>; SUMS], reach: f32, out: &mut [f32]| {
+                let [count, _, s0, s1, s2, ..] = sums;
                 // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
                 let count = count[x].max(1.0);
-                let reach = errors * (variance[x] / count).max(0.0).sqrt();
                 [s0, s1, s2].into_iter().enumerate().for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
             };
             let dense = sums(y, CEILING_RADIUS, 0..w);
             let sparse = |x: &usize| dense[LIT][*x] < LIT_SHARE * dense[PIXELS][*x];
+            let (mut alike, mut variances) = (Vec::new(), Vec::new());
             for x in (0..w).filter(|x| !sparse(x)) {
-                ceiling_of(x, &dense, errors, out);
+                let m = window.similar_median_variance(x, y, &mut alike, &mut variances);
+                ceiling_of(x, &dense, errors * m.max(0.0).sqrt(), out);
             }
             // Where the 7×7 window is sparse, the 15×15 one, on the columns from the first
             // such pixel to the last.
@@ -137,7 +143,9 @@ impl DiffuseCeiling {
                 if wide[HITS][x] < SPARSE_HITS {
                     (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
                 } else {
-                    ceiling_of(x, &wide, errors * SPARSE_ERRORS, out);
+                    let [count, variance, ..] = &wide;
+                    let reach = errors * SPARSE_ERRORS * (variance[x] / count[x].max(1.0)).max(0.0).sqrt();
+                    ceiling_of(x, &wide, reach, out);
                 }
             }
         });
@@ -156,7 +164,8 @@ impl DiffuseCeiling {
     }
 }
 
-/// What [`spatial_ceiling_row`] reads: the region's features, the mean of d̃'s channels
+/// What the ceiling's per-pixel gathers read ([`spatial_ceiling_row`],
+/// [`Window::similar_median_variance`]): the region's features, the mean of d̃'s channels
 /// (on the rows the windows read) and the ceiling's errors.
 struct Window<'a> {
     width: usize,
@@ -215,6 +224,23 @@ impl Window<'_> {
         (pixels, lit)
     }
 
+    /// The median variance of the similar neighbours of pixel (`x`, `y`) in its 7×7 window
+    /// (alike in albedo and normal, mean d̃ within 2 errors of the pixel's, as
+    /// [`add_similar`] judges them; finite variances only), read per pixel; NaN where none
+    /// is finite. `alike` and `variances` are scratch.
+    fn similar_median_variance(&self, x: usize, y: usize, alike: &mut Vec<usize>, variances: &mut Vec<f32>) -> f32 {
+        let (i, var) = (y * self.width + x, &self.f.d_variance);
+        self.gather(x, y, CEILING_RADIUS, alike, variances);
+        variances.clear();
+        for &j in &*alike {
+            let v = var[j];
+            if v >= 0.0 && v.is_finite() && (j == i || within_errors(self.mean[j] - self.mean[i], v + var[i])) {
+                variances.push(v);
+            }
+        }
+        median(variances)
+    }
+
     /// The ceiling of pixel `i` from the similar ones among `alike` (see
     /// [`spatial_ceiling_row`]); none where no variance is finite.
     fn dense_ceiling(&self, i: usize, alike: &[usize], variances: &mut [f32]) -> [f32; 3] {
@@ -225,7 +251,7 @@ impl Window<'_> {
         let (mut count, mut sum) = (0f32, [0f32; 3]);
         for &j in alike {
             let e = self.mean[j] - self.mean[i];
-            if j == i || e * e <= SIMILAR_ERRORS * SIMILAR_ERRORS * 2.0 * m {
+            if j == i || within_errors(e, 2.0 * m) {
                 count += 1.0;
                 (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
             }
@@ -249,6 +275,13 @@ impl Window<'_> {
         }
         sum.map(|s| s / alike.len() as f32 + self.errors * m.sqrt())
     }
+}
+
+/// Whether two noisy values `e` apart, the variances of their means summing to `variance`,
+/// may show the same light: within [`SIMILAR_ERRORS`] standard errors of their difference.
+#[inline(always)]
+fn within_errors(e: f32, variance: f32) -> bool {
+    e * e <= SIMILAR_ERRORS * SIMILAR_ERRORS * variance
 }
 
 /// Whether two pixels are alike in albedo and normal, from the largest difference of their
@@ -406,14 +439,13 @@ fn add_similar(
     [s0, s1, s2]: [&mut [f32]; 3],
     hits: &mut [f32],
 ) {
-    let errors2 = SIMILAR_ERRORS * SIMILAR_ERRORS;
     for k in 0..count.len() {
         let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
         let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
         let e = mj[k] - mi[k];
         let alike = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2);
         hits[k] += if alike & (mj[k] != 0.0) { 1.0 } else { 0.0 };
-        let similar = alike & (e * e <= errors2 * (vj[k] + vi[k]));
+        let similar = alike & within_errors(e, vj[k] + vi[k]);
         let s = if similar { 1.0 } else { 0.0 };
         count[k] += s;
         variance[k] += s * vj[k];
@@ -470,12 +502,8 @@ mod tests {
             _ => 1e-4,
         };
         let edge = 3 * 12 + 4;
-        let mut per_pixel: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 84]);
-        ceiling(0..7, d, v, 0..7).apply(&mut per_pixel);
-        // Read per pixel, the edge's variance lets the light through …
-        assert_eq!(per_pixel[0][edge], 1.8);
-        // … the window's median variance (0.01: of its 49 variances, 14 are the edge's) does
-        // not: the dark neighbours' 0.07 + 2 × 0.1.
+        // The window's median variance (0.01: of its 49 variances, 14 are the edge's) holds
+        // the light back: the dark neighbours' 0.07 + 2 × 0.1.
         let mut median: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.8; 84]);
         ceiling_fed(Variances::Spatial, 0..7, d, v, 0..7).apply(&mut median);
         assert!((median[1][edge] - 0.27).abs() < 1e-5, "{}", median[1][edge]);
@@ -502,6 +530,24 @@ mod tests {
         assert!((d_hat[1][3 * 12 + 11] - 0.09).abs() < 1e-5, "{}", d_hat[1][3 * 12 + 11]);
         // The lit side keeps what it is given, dimmed or not.
         assert_eq!((d_hat[1][3 * 12 + 3], d_hat[0][3 * 12 + 3]), (1.8, 4.0));
+    }
+
+    #[test]
+    fn a_few_single_sample_hits_in_a_lit_window_do_not_widen_its_margin() {
+        // A lit surface (1.0, variance 0.01) where one pixel in eight got a bright
+        // single-sample hit too (30, variance 900: an error about its value, so similar to
+        // the rest). The kernels carry 10 into every pixel. The margin is 2 × the root of
+        // the similar neighbours' median variance (0.1), not of their mean (≈ 10.4), which
+        // would let 10 through.
+        let hit = |i: usize| i % 8 == 3;
+        let c = ceiling(0..7, |i| if hit(i) { 30.0 } else { 1.0 }, |i| if hit(i) { 900.0 } else { 0.01 }, 0..7);
+        let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|_| vec![10.0; 84]);
+        c.apply(&mut d_hat);
+        // Pixel (6, 3): its 7×7 window is columns 3–9 of all 7 rows, every pixel similar.
+        let window: Vec<usize> = (0..7).flat_map(|y| (3..10).map(move |x| y * 12 + x)).collect();
+        let mean = window.iter().map(|&i| if hit(i) { 30.0 } else { 1.0 }).sum::<f32>() / 49.0;
+        let centre = 3 * 12 + 6;
+        assert!((d_hat[0][centre] - (mean + 0.2)).abs() < 1e-4, "{} against {}", d_hat[0][centre], mean + 0.2);
     }
 
     #[test]
