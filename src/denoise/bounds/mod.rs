@@ -119,33 +119,27 @@ impl DiffuseCeiling {
         let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
-        let sums = |y: usize, r: usize, xs: Range<usize>| window_row_sums(add, &planes, w, h, y, r, xs);
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
-            // The pixel's similar neighbours' mean d̃ (from the window `sums`) plus `reach`.
-            let ceiling_of = |x: usize, sums: &[Vec<f32>; SUMS], reach: f32, out: &mut [f32]| {
-                let [count, _, s0, s1, s2, ..] = sums;
-                // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
-                let count = count[x].max(1.0);
-                [s0, s1, s2].into_iter().enumerate().for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
-            };
-            let dense = sums(y, CEILING_RADIUS, 0..w);
-            let sparse = |x: &usize| dense[LIT][*x] < LIT_SHARE * dense[PIXELS][*x];
-            let (mut alike, mut variances) = (Vec::new(), Vec::new());
-            for x in (0..w).filter(|x| !sparse(x)) {
-                let m = window.similar_median_variance(x, y, &mut alike, &mut variances);
-                ceiling_of(x, &dense, errors * m.max(0.0).sqrt(), out);
+            let (mut alike, mut variances, mut sparse) = (Vec::new(), Vec::new(), Vec::new());
+            for x in 0..w {
+                match window.dense_file_ceiling(x, y, &mut alike, &mut variances) {
+                    Some(ceiling) => (0..3).for_each(|c| out[c * w + x] = ceiling[c]),
+                    None => sparse.push(x),
+                }
             }
-            // Where the 7×7 window is sparse, the 15×15 one, on the columns from the first
-            // such pixel to the last.
-            let (Some(first), Some(last)) = ((0..w).find(sparse), (0..w).rfind(sparse)) else { return };
-            let wide = sums(y, SPARSE_RADIUS, first..last + 1);
-            for x in (first..=last).filter(sparse) {
-                if wide[HITS][x] < SPARSE_HITS {
+            // Where the 7×7 window is sparse, the 15×15 one, summed (vectorised) on the
+            // columns from the first such pixel to the last.
+            let (Some(&first), Some(&last)) = (sparse.first(), sparse.last()) else { return };
+            let [count, variance, s0, s1, s2, hits] =
+                window_row_sums(add, &planes, w, h, y, SPARSE_RADIUS, first..last + 1);
+            for x in sparse {
+                if hits[x] < SPARSE_HITS {
                     (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
                 } else {
-                    let [count, variance, ..] = &wide;
-                    let reach = errors * SPARSE_ERRORS * (variance[x] / count[x].max(1.0)).max(0.0).sqrt();
-                    ceiling_of(x, &wide, reach, out);
+                    // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
+                    let count = count[x].max(1.0);
+                    let reach = errors * SPARSE_ERRORS * (variance[x] / count).max(0.0).sqrt();
+                    [&s0, &s1, &s2].into_iter().enumerate().for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
                 }
             }
         });
@@ -165,7 +159,7 @@ impl DiffuseCeiling {
 }
 
 /// What the ceiling's per-pixel gathers read ([`spatial_ceiling_row`],
-/// [`Window::similar_median_variance`]): the region's features, the mean of d̃'s channels
+/// [`Window::dense_file_ceiling`]): the region's features, the mean of d̃'s channels
 /// (on the rows the windows read) and the ceiling's errors.
 struct Window<'a> {
     width: usize,
@@ -180,8 +174,8 @@ struct Window<'a> {
 /// normal; of those, the ones whose mean d̃ is within 2 standard errors of the pixel's
 /// (√(2m)) are similar, and the ceiling is their mean d̃ plus `errors` × √m. Where under
 /// half the 7×7 window saw light, the 15×15 window's alike neighbours give it instead
-/// ([`Window::wide_ceiling`]). Not vectorised (a median per pixel): only models fed
-/// spatial estimates pay for it on every pixel.
+/// ([`Window::wide_ceiling`]). Not vectorised: a median per pixel, as on the file's
+/// variances ([`Window::dense_file_ceiling`]).
 fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
     let w = win.width;
     let (mut alike, mut variances) = (Vec::new(), Vec::new());
@@ -224,21 +218,38 @@ impl Window<'_> {
         (pixels, lit)
     }
 
-    /// The median variance of the similar neighbours of pixel (`x`, `y`) in its 7×7 window
-    /// (alike in albedo and normal, mean d̃ within 2 errors of the pixel's, as
-    /// [`add_similar`] judges them; finite variances only), read per pixel; NaN where none
-    /// is finite. `alike` and `variances` are scratch.
-    fn similar_median_variance(&self, x: usize, y: usize, alike: &mut Vec<usize>, variances: &mut Vec<f32>) -> f32 {
+    /// The ceiling of pixel (`x`, `y`) from its 7×7 window, on the file's variances: the
+    /// mean d̃ of its similar neighbours (alike in albedo and normal, mean d̃ within 2
+    /// errors of the pixel's, as [`add_similar`] judges them; the pixel always) plus
+    /// `errors` × the root of their median variance (finite ones; none: no margin).
+    /// `None` where under half the window saw light (sparse). `alike` and `variances` are
+    /// scratch.
+    fn dense_file_ceiling(
+        &self,
+        x: usize,
+        y: usize,
+        alike: &mut Vec<usize>,
+        variances: &mut Vec<f32>,
+    ) -> Option<[f32; 3]> {
         let (i, var) = (y * self.width + x, &self.f.d_variance);
-        self.gather(x, y, CEILING_RADIUS, alike, variances);
+        let (pixels, lit) = self.gather(x, y, CEILING_RADIUS, alike, variances);
+        if lit < LIT_SHARE * pixels {
+            return None;
+        }
         variances.clear();
+        let (mut count, mut sum) = (0f32, [0f32; 3]);
         for &j in &*alike {
             let v = var[j];
-            if v >= 0.0 && v.is_finite() && (j == i || within_errors(self.mean[j] - self.mean[i], v + var[i])) {
-                variances.push(v);
+            if j == i || within_errors(self.mean[j] - self.mean[i], v + var[i]) {
+                count += 1.0;
+                (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
+                if v >= 0.0 && v.is_finite() {
+                    variances.push(v);
+                }
             }
         }
-        median(variances)
+        let reach = self.errors * median(variances).max(0.0).sqrt();
+        Some(sum.map(|s| s / count + reach))
     }
 
     /// The ceiling of pixel `i` from the similar ones among `alike` (see
@@ -308,19 +319,14 @@ fn median(v: &mut [f32]) -> f32 {
     *v.select_nth_unstable_by(half, f32::total_cmp).1
 }
 
-/// How many sums [`window_row_sums`] keeps per pixel, and where the counts of alike
-/// neighbours that saw light, of the window's pixels and of its lit pixels are among them.
-const SUMS: usize = 8;
-const HITS: usize = 5;
-const PIXELS: usize = 6;
-const LIT: usize = 7;
+/// How many sums [`window_row_sums`] keeps per pixel.
+const SUMS: usize = 6;
 
-/// The sums of [`DiffuseCeiling`] over the window of half-side `r` around each pixel of
+/// The sums of [`DiffuseCeiling`]'s wide window, of half-side `r`, around each pixel of
 /// columns `xs` of row `y` (elsewhere 0), from `planes` (mean d̃, its variance, d̃ RGB,
 /// albedo RGB, normal XYZ) of a `w` × `h` region: count of similar neighbours, their
-/// variances and d̃ RGB, the alike neighbours that saw light, the window's pixels and lit
-/// pixels. One offset at a time along the row, so that the loop vectorises; each pixel's
-/// in the window's order.
+/// variances and d̃ RGB, and the alike neighbours that saw light. One offset at a time
+/// along the row, so that the loop vectorises; each pixel's in the window's order.
 fn window_row_sums(
     add: AddSimilar,
     planes: &[&[f32]; 11],
@@ -355,7 +361,7 @@ fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: 
     let n = here[0].len();
     let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
     let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
-    let [count, variance, s0, s1, s2, hits, pixels, lit] = acc.each_mut().map(|a| &mut a[..n]);
+    let [count, variance, s0, s1, s2, hits] = acc.each_mut().map(|a| &mut a[..n]);
     add(
         [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
         mj,
@@ -368,10 +374,6 @@ fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: 
         [s0, s1, s2],
         hits,
     );
-    for (k, p) in pixels.iter_mut().enumerate() {
-        *p += 1.0;
-        lit[k] += if mj[k] != 0.0 { 1.0 } else { 0.0 };
-    }
 }
 
 /// The similarity test and sums of [`window_sums`]: AVX2 where the CPU has it (twice as
