@@ -223,7 +223,16 @@ def test_arrays_stream_in_bands_with_the_same_bits(example):
     assert same_bits(in_bands, whole)
 
 
-def test_ctrl_c_cancels_within_a_tile(example):
+@pytest.fixture
+def ctrl_c_raises():
+    """Python's own Ctrl-C handler for a test, even where the suite runs as a background job
+    (its shell leaves SIGINT ignored, and Python then installs none); restored after."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_cancels_within_a_tile(example, ctrl_c_raises):
     one = kpcn.Denoiser(threads=1, max_memory=16)
     frame = big(example)
     # The fastest of two runs (the first pays for warm-up), and the signal early in the
