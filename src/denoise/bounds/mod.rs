@@ -110,12 +110,11 @@ impl DiffuseCeiling {
         let mut mean = vec![0f32; w * h];
         mean[read.clone()].par_iter_mut().zip(read).for_each(|(m, i)| *m = (d[0][i] + d[1][i] + d[2][i]) / 3.0);
         let mut ceiling = vec![0f32; 3 * w * rows.len()];
+        let window = Window { width: w, height: h, errors, mean: &mean, f };
         if arch.variances == Variances::Spatial {
-            let window = Window { width: w, height: h, errors, mean: &mean, f };
             ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| spatial_ceiling_row(&window, y, out));
             return Some(DiffuseCeiling { ceiling, width: w });
         }
-        let window = Window { width: w, height: h, errors, mean: &mean, f };
         let add = add_similar_avx2_or_not();
         let planes: [&[f32]; 11] =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
