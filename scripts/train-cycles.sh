@@ -1,12 +1,16 @@
 #!/usr/bin/env bash
 # Fine-tunes a shipped model on our Cycles corpus (scripts/cycles-corpus.sh): the domain
-# the team measures on, instead of the simulator alone. Every 5th scene by name (seed ≡ 4
-# mod 5) is held out for validation, as benches/quality_corpus.sh scores it; the team's
-# dev set is never read.
+# the team measures on, instead of the simulator alone. Every 5th scene of the snapshot by
+# name is held out for validation, as benches/quality_corpus.sh scores it; the team's dev
+# set is never read.
 #
 #   scripts/train-cycles.sh CORPUS SCENES [MODEL]   # SCENES: N, the corpus's first N
-#                                                   # scenes, or A-B, seeds A to B−1
-#                                                   # (default model: balanced)
+#                                                   # scenes, or A-B, seeds A to B−1, or
+#                                                   # several ranges joined by commas
+#                                                   # (0-126,100000-100016); default
+#                                                   # model: balanced. CORPUS/raw trains
+#                                                   # on the files as Blender writes them
+#                                                   # (scripts/train-spatial.sh)
 #   KPCN_WORK=DIR                                   # work folder (default ./train-cycles/ft)
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M                # segment length (default 3000 + 500)
 #   KPCN_LR=R KPCN_LR2=R2                           # learning rates (default 5e-5, 2e-5)
@@ -37,10 +41,9 @@ cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
 scenes=${2:?usage: scripts/train-cycles.sh CORPUS SCENES [MODEL]}
 model=${3:-balanced}
-case $scenes in
-    *-*) first=${scenes%-*} end=${scenes#*-} ;;
-    *) first=0 end=$scenes ;;
-esac
+# ranges: "A B" lines, seeds A to B−1, one per comma-separated range.
+ranges=$(tr ',' '\n' <<<"$scenes" | awk -F- 'NF == 2 { print $1, $2; next } NF == 1 { print 0, $1; next } { exit 1 }') ||
+    { echo "train-cycles: SCENES is N, A-B or A-B,C-D…, not $scenes" >&2; exit 1; }
 work=${KPCN_WORK:-train-cycles/ft}
 mkdir -p "$work"
 
@@ -56,19 +59,26 @@ if [ ! -f "$data/manifest.csv" ]; then
     # manifest.csv: scene,family,seed,sample_seed,spp,file,reference,render_seconds; paths
     # relative to the snapshot's folder.
     rel=$(realpath --relative-to="$data" "$corpus")
+    # The raw files' folder (CORPUS/raw) lists its scenes beside the corpus's own record.
+    jsonl=$corpus/corpus.jsonl
+    [ -f "$jsonl" ] || jsonl=$corpus/../corpus.jsonl
     noisy=$(python3 -c '
 import json, sys
 for line in open(sys.argv[1]):
     d = json.loads(line)
     if d.get("reference_relmse_floor", 0) > float(sys.argv[2]):
-        print(d["scene"])' "$corpus/corpus.jsonl" "${KPCN_MAX_FLOOR:-0.03}" | tr '\n' ' ')
-    found=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" '$3 >= a && $3 < b' | cut -d, -f1 | sort -u | wc -l)
-    [ "$found" -eq $((end - first)) ] || { echo "train-cycles: $corpus has $found of the scenes $first to $((end - 1))" >&2; exit 1; }
+        print(d["scene"])' "$jsonl" "${KPCN_MAX_FLOOR:-0.03}" | tr '\n' ' ')
+    while read -r first end; do
+        found=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" '$3 >= a && $3 < b' | cut -d, -f1 | sort -u | wc -l)
+        [ "$found" -eq $((end - first)) ] || { echo "train-cycles: $corpus has $found of the scenes $first to $((end - 1))" >&2; exit 1; }
+    done <<<"$ranges"
     {
         head -1 "$corpus/manifest.csv"
-        tail -n +2 "$corpus/manifest.csv" | awk -F, -v a="$first" -v b="$end" -v rel="$rel" -v noisy="$noisy" '
-            BEGIN { OFS = ","; split(noisy, l, " "); for (i in l) skip[l[i]] = 1 }
-            $3 >= a && $3 < b && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+        tail -n +2 "$corpus/manifest.csv" | awk -F, -v ranges="$ranges" -v rel="$rel" -v noisy="$noisy" '
+            BEGIN { OFS = ","; split(noisy, l, " "); for (i in l) skip[l[i]] = 1
+                    n = split(ranges, r, "\n"); for (i = 1; i <= n; i++) { split(r[i], ab, " "); lo[i] = ab[1]; hi[i] = ab[2] } }
+            { inside = 0; for (i = 1; i <= n; i++) if ($3 >= lo[i] && $3 < hi[i]) inside = 1 }
+            inside && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
         if [ -n "${KPCN_SIM:-}" ]; then
             sim=$(realpath --relative-to="$data" "$KPCN_SIM")
             tail -n +2 "$KPCN_SIM/manifest.csv" | awk -F, -v rel="$sim" 'BEGIN { OFS = "," } { $6 = rel "/" $6; $7 = rel "/" $7; print }'

@@ -1,7 +1,7 @@
 //! The trainer on a tiny generated dataset: it learns, and a checkpoint resumes bit-exactly.
 
 use kpcn::features::Branch;
-use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing};
+use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing, Variances};
 use kpcn::train::augment::{ChannelOrder, Orientation};
 use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
 use kpcn::train::{Loss, TrainOptions, Trainer, l1};
@@ -379,13 +379,18 @@ fn kpcn_train_writes_a_model_log_and_resumes() {
         ];
         kpcn(&[&init[..], extra].concat())
     };
-    let out = tune(&auto, &["--init", model.to_str().unwrap(), "--exposure", "auto"]);
+    let out = tune(&auto, &["--init", model.to_str().unwrap(), "--exposure", "auto", "--variances", "spatial"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let auto_model = auto.join("model.safetensors");
     assert_eq!(Model::load(&auto_model).unwrap().arch.exposure, Exposure::Auto);
     assert!(tune(&again, &["--init", auto_model.to_str().unwrap()]).status.success());
-    assert_eq!(Model::load(&again.join("model.safetensors")).unwrap().arch.exposure, Exposure::Auto);
+    // Its variances too: a spatial model fine-tuned without --variances stays spatial.
+    let arch = Model::load(&again.join("model.safetensors")).unwrap().arch;
+    assert_eq!((arch.exposure, arch.variances), (Exposure::Auto, Variances::Spatial));
     let out = tune(&auto, &["--resume"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--variances spatial"), "{err}");
+    let out = tune(&auto, &["--resume", "--variances", "spatial"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--exposure auto"), "{err}");
     // One branch retrained afresh: the other keeps the model's weights exactly.

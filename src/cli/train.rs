@@ -50,9 +50,9 @@ pub struct TrainArgs {
     /// Variance features to train on: `file` (the dataset's own per-pixel variances) or
     /// `spatial` (3×3 spatial estimates, what files without variances, such as Blender's,
     /// give at inference). Recorded in the model, which is then always fed that kind.
-    /// Give it again with --resume.
-    #[arg(long, value_enum, default_value_t = Variances::File, value_name = "file|spatial")]
-    pub variances: Variances,
+    /// Default: the --init model's, else file. Give it again with --resume.
+    #[arg(long, value_enum, value_name = "file|spatial")]
+    pub variances: Option<Variances>,
     /// Radiance the network sees: `raw` (as rendered) or `auto` (each frame scaled so its
     /// geometric-mean 16×16 block luminance is 0.18, as OIDN's autoexposure; the output is
     /// scaled back). Recorded in the model. Default: the --init model's, else raw. Give it
@@ -203,14 +203,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         bail!("--batch must be ≥ 1 and --patch ≥ 8");
     }
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
-    let variances = args.variances;
-    // The --init model, read once: its exposure is the default, and training starts from it.
+    // The --init model, read once: its variances and exposure are the defaults, and
+    // training starts from it.
     let init = if args.resume { None } else { args.init.as_deref().map(Model::load).transpose()? };
-    let exposure = match (args.exposure, &init) {
-        (Some(e), _) => e,
-        (None, Some(init)) => init.arch.exposure,
-        (None, _) => Exposure::Raw,
-    };
+    let variances = args.variances.or(init.as_ref().map(|m| m.arch.variances)).unwrap_or(Variances::File);
+    let exposure = args.exposure.or(init.as_ref().map(|m| m.arch.exposure)).unwrap_or(Exposure::Raw);
     let prep = Preprocessing { variances, exposure };
     let data = Dataset::load(&args.data, args.holdout.max(2), !args.no_cache, prep)?;
     let dev = args.dev.as_deref().map(|d| CheckSet::load(d, prep)).transpose()?;
