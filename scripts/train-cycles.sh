@@ -12,6 +12,9 @@
 #                                                   # on the files as Blender writes them
 #                                                   # (scripts/train-spatial.sh)
 #   KPCN_WORK=DIR                                   # work folder (default ./train-cycles/ft)
+#   KPCN_RUN=NAME                                   # the segment's folder in it (default
+#                                                   # run): a further segment on the same
+#                                                   # data snapshot and frame cache
 #   KPCN_STEPS=N KPCN_PHASE2_STEPS=M                # segment length (default 3000 + 500)
 #   KPCN_LR=R KPCN_LR2=R2                           # learning rates (default 5e-5, 2e-5)
 #   KPCN_MAX_FLOOR=F                                # leave out scenes whose reference is
@@ -88,7 +91,7 @@ for line in open(sys.argv[1]):
     mv "$data/manifest.partial" "$data/manifest.csv"
 fi
 
-run=$work/run
+run=$work/${KPCN_RUN:-run}
 if [ -f "$run/model.safetensors" ]; then
     echo "$run: done"
     exit 0

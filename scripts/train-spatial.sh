@@ -24,11 +24,11 @@
 #      error on these files: BENCHMARKS.md), lr 5e-5 cosine, 4,000 steps, no phase 2,
 #      every 5th scene held out (WORK/cycles/run, its learning curve in log.csv);
 #   4. a second segment on the same data from step 3's weights, its held-out error still
-#      falling: lr 3e-5 cosine, 3,000 steps (WORK/cycles2).
-# The result keeps step 1's clamp and ceiling: copy WORK/cycles2/model.safetensors to
+#      falling: lr 3e-5 cosine, 3,000 steps (WORK/cycles/run2).
+# The result keeps step 1's clamp and ceiling: copy WORK/cycles/run2/model.safetensors to
 # models/spatial.safetensors. Score it against the shipped model on the held-out scenes with
 #   SPLIT=validation ONLY='^cyc-' CHANNELS=ViewLayer.Denoised \
-#     benches/quality_corpus.sh WORK/cycles/data spatial WORK/cycles2/model.safetensors
+#     benches/quality_corpus.sh WORK/cycles/data spatial WORK/cycles/run2/model.safetensors
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train-spatial.sh CORPUS SCENES}
@@ -54,13 +54,5 @@ nice -n 19 "$kpcn" dataset --count 2 --first-seed 14 --spp 4,16,64 --reference-s
 KPCN_WORK=$work/cycles KPCN_SIM=$sim KPCN_LOSS=l1 KPCN_LR=5e-5 KPCN_LR2=2e-5 KPCN_STEPS=4000 \
     KPCN_PHASE2_STEPS=0 scripts/train-cycles.sh "$corpus/raw" "$scenes" "$start"
 
-second=$work/cycles2
-if [ ! -f "$second/model.safetensors" ]; then
-    resume=()
-    [ -f "$second/checkpoint.safetensors" ] && resume=(--resume)
-    nice -n 19 "$work/cycles/kpcn" train --data "$work/cycles/data" -o "$second" \
-        --init "$work/cycles/run/model.safetensors" --holdout 5 --steps 3000 --phase2-steps 0 \
-        --batch 4 --patch 96 --lr 3e-5 --schedule cosine --loss l1 --augment \
-        --checkpoint-every 250 --validate-every 500 -q "${resume[@]}"
-fi
-echo "$second/model.safetensors (log: $second/log.csv)"
+KPCN_WORK=$work/cycles KPCN_RUN=run2 KPCN_SIM=$sim KPCN_LOSS=l1 KPCN_LR=3e-5 KPCN_STEPS=3000 \
+    KPCN_PHASE2_STEPS=0 scripts/train-cycles.sh "$corpus/raw" "$scenes" "$work/cycles/run/model.safetensors"
