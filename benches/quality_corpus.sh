@@ -10,6 +10,10 @@
 # `denoised` (files as Blender writes them, corpus/raw/: CHANNELS=ViewLayer.Denoised).
 # ONLY=REGEX scores only the split's scenes whose name matches (an awk regular expression:
 # ONLY='^cyc-' for the Cycles scenes of a snapshot that mixes in simulator scenes).
+# "light kept" is the denoised frame's mean over the noisy input's (geometric mean over the
+# frames; the input is the root R,G,B, or LAYER.Combined beside LAYER.Denoised), and
+# "off > 5 %" counts the frames whose ratio is more than 5 % from 1: brightness, which
+# relMSE forgives (light missing from a bright pixel costs less than light in a dark one).
 #
 #   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
@@ -32,17 +36,27 @@ for model in "$@"; do
     while IFS=, read -r scene _ _ _ spp file reference _; do
         $kpcn denoise "$corpus/$file" -o "$work/den.exr" --model "$model" -q --threads 2
         s=$($kpcn eval -r "$corpus/$reference" "$work/den.exr" --channels "${CHANNELS:-auto}" --format csv | tail -1 | cut -d, -f3,6,7)
-        echo "$m $spp $scene ${s//,/ }" >>"$work/scores"
+        kept=$(python3 - "$work/den.exr" "${CHANNELS:-auto}" <<'PY'
+import sys, numpy as np, OpenEXR, Imath
+f = OpenEXR.InputFile(sys.argv[1]); layer = sys.argv[2]
+out, noisy = ("denoised.", "") if layer == "auto" else (layer + ".", layer.rsplit(".", 1)[0] + ".Combined." if layer.endswith(".Denoised") else "")
+mean = lambda p: np.mean([np.frombuffer(f.channel(p + c, Imath.PixelType(Imath.PixelType.FLOAT)), np.float32).astype(np.float64).mean() for c in "RGB"])
+print(f"{mean(out) / max(mean(noisy), 1e-12):.6f}")
+PY
+)
+        echo "$m $spp $scene ${s//,/ } $kept" >>"$work/scores"
     done <<<"$rows"
     m=$((m + 1))
 done
 # Per model and sample count: geometric means, and the same as multiples of model 0's.
 awk -v names="$*" 'BEGIN { split(names, N, " ") }
-    { k = $1 " " $2; for (i = 4; i <= 6; i++) g[k, i] += log($i); n[k]++; spps[$2] = 1; models = $1 > models ? $1 : models }
+    { k = $1 " " $2; for (i = 4; i <= 7; i++) g[k, i] += log($i); n[k]++; spps[$2] = 1; models = $1 > models ? $1 : models
+      off[k] += ($7 > 1.05 || $7 < 0.95) }
     END { for (m = 0; m <= models; m++) for (s in spps) { k = m " " s; b = 0 " " s;
-            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f\n", N[m + 1], s, n[k],
+            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f | %.3f %5d\n", N[m + 1], s, n[k],
                 exp(g[k, 4] / n[k]), exp(g[k, 5] / n[k]), exp(g[k, 6] / n[k]),
-                exp((g[k, 4] - g[b, 4]) / n[k]), exp((g[k, 5] - g[b, 5]) / n[k]), exp((g[k, 6] - g[b, 6]) / n[k]) } }' "$work/scores" >"$work/table"
-printf '%-44s %4s %6s | %-9s %-9s %-9s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)"
+                exp((g[k, 4] - g[b, 4]) / n[k]), exp((g[k, 5] - g[b, 5]) / n[k]), exp((g[k, 6] - g[b, 6]) / n[k]),
+                exp(g[k, 7] / n[k]), off[k] } }' "$work/scores" >"$work/table"
+printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %"
 # In the order the models were named, then by sample count.
 for model in "$@"; do grep "^$model " "$work/table" | sort -k2,2n; done
