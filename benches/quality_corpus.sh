@@ -13,7 +13,8 @@
 # "light kept" is the denoised frame's mean over the noisy input's (geometric mean over the
 # frames; the input is the root R,G,B, or LAYER.Combined beside LAYER.Denoised), and
 # "off > 5 %" counts the frames whose ratio is more than 5 % from 1: brightness, which
-# relMSE forgives (light missing from a bright pixel costs less than light in a dark one).
+# relMSE forgives (light missing from a bright pixel costs less than light in a dark one;
+# python3 with numpy and OpenEXR reads the means, as for benches/quality_blender.sh).
 #
 #   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
@@ -39,7 +40,10 @@ for model in "$@"; do
         kept=$(python3 - "$work/den.exr" "${CHANNELS:-auto}" <<'PY'
 import sys, numpy as np, OpenEXR, Imath
 f = OpenEXR.InputFile(sys.argv[1]); layer = sys.argv[2]
-out, noisy = ("denoised.", "") if layer == "auto" else (layer + ".", layer.rsplit(".", 1)[0] + ".Combined." if layer.endswith(".Denoised") else "")
+if layer == "auto":
+    out, noisy = "denoised.", ""
+else:  # Blender's LAYER.Denoised sits beside its noisy LAYER.Combined
+    out, noisy = layer + ".", layer.removesuffix("Denoised") + "Combined." if layer.endswith(".Denoised") else ""
 mean = lambda p: np.mean([np.frombuffer(f.channel(p + c, Imath.PixelType(Imath.PixelType.FLOAT)), np.float32).astype(np.float64).mean() for c in "RGB"])
 print(f"{mean(out) / max(mean(noisy), 1e-12):.6f}")
 PY
