@@ -15,6 +15,10 @@
 # "off > 5 %" counts the frames whose ratio is more than 5 % from 1: brightness, which
 # relMSE forgives (light missing from a bright pixel costs less than light in a dark one;
 # python3 with numpy and OpenEXR reads the means, as for benches/quality_blender.sh).
+# "× floor" is relMSE over the reference's own expected error (`reference_relmse_floor` in
+# the corpus's corpus.jsonl, beside the references' folders; geometric mean over the frames
+# that have one): near 1, a frame's score is mostly the reference's noise, and cannot tell
+# better models apart.
 #
 #   benches/quality_corpus.sh DIR MODEL [MODEL...]
 set -euo pipefail
@@ -32,6 +36,22 @@ held=$(tail -n +2 "$corpus/manifest.csv" | cut -d, -f1 | sort -u | awk 'NR % 5 =
 rows=$(tail -n +2 "$corpus/manifest.csv" | awk -F, -v which="$split" -v held="$held" -v only="${ONLY:-.}" '
     BEGIN { split(held, l, " "); for (i in l) h[l[i]] = 1 } (which == "all" || ($1 in h)) && $1 ~ only')
 [ -n "$rows" ] || { echo "quality_corpus: no $split scenes in $corpus/manifest.csv" >&2; exit 1; }
+# Each scene's reference floor (`reference_relmse_floor`), from the corpus.jsonl beside the
+# references' folders, where there is one.
+echo "$rows" >"$work/rows"
+python3 - "$corpus" "$work/rows" >"$work/floors" <<'PY'
+import json, os, sys
+seen = set()
+for row in open(sys.argv[2]):
+    reference = os.path.join(sys.argv[1], row.rstrip("\n").split(",")[6])
+    jsonl = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(reference))), "corpus.jsonl")
+    if jsonl in seen or not os.path.exists(jsonl):
+        continue
+    seen.add(jsonl)
+    for line in open(jsonl):
+        d = json.loads(line)
+        print(d["scene"], d.get("reference_relmse_floor", 0.0))
+PY
 m=0
 for model in "$@"; do
     while IFS=, read -r scene _ _ _ spp file reference _; do
@@ -48,19 +68,20 @@ mean = lambda p: np.mean([np.frombuffer(f.channel(p + c, Imath.PixelType(Imath.P
 print(f"{mean(out) / max(mean(noisy), 1e-12):.6f}")
 PY
 )
-        echo "$m $spp $scene ${s//,/ } $kept" >>"$work/scores"
+        floor=$(awk -v scene="$scene" -v r="${s%%,*}" '$1 == scene { f = $2 } END { print (f > 0 ? sprintf("%.4f", r / f) : "-") }' "$work/floors")
+        echo "$m $spp $scene ${s//,/ } $kept $floor" >>"$work/scores"
     done <<<"$rows"
     m=$((m + 1))
 done
 # Per model and sample count: geometric means, and the same as multiples of model 0's.
 awk -v names="$*" 'BEGIN { split(names, N, " ") }
     { k = $1 " " $2; for (i = 4; i <= 7; i++) g[k, i] += log($i); n[k]++; spps[$2] = 1; models = $1 > models ? $1 : models
-      off[k] += ($7 > 1.05 || $7 < 0.95) }
+      off[k] += ($7 > 1.05 || $7 < 0.95); if ($8 != "-") { fl[k] += log($8); nf[k]++ } }
     END { for (m = 0; m <= models; m++) for (s in spps) { k = m " " s; b = 0 " " s;
-            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f | %.3f %5d\n", N[m + 1], s, n[k],
+            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f | %.3f %15d | %s\n", N[m + 1], s, n[k],
                 exp(g[k, 4] / n[k]), exp(g[k, 5] / n[k]), exp(g[k, 6] / n[k]),
                 exp((g[k, 4] - g[b, 4]) / n[k]), exp((g[k, 5] - g[b, 5]) / n[k]), exp((g[k, 6] - g[b, 6]) / n[k]),
-                exp(g[k, 7] / n[k]), off[k] } }' "$work/scores" >"$work/table"
-printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %"
+                exp(g[k, 7] / n[k]), off[k], nf[k] ? sprintf("%.2f", exp(fl[k] / nf[k])) : "-" } }' "$work/scores" >"$work/table"
+printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %-21s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %" "× floor"
 # In the order the models were named, then by sample count.
 for model in "$@"; do grep "^$model " "$work/table" | sort -k2,2n; done

@@ -56,6 +56,9 @@ fn eval_prints_json_and_writes_error_maps() {
     let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(doc["files"][0]["relmse"].as_f64().unwrap() > 0.0);
     assert_eq!(doc["files"][1]["relmse"].as_f64().unwrap(), 0.0, "the reference against itself");
+    assert_eq!(doc["files"][1]["brightness"].as_f64().unwrap(), 1.0, "the reference against itself");
+    let bright = doc["files"][0]["brightness"].as_f64().unwrap();
+    assert!(bright.is_finite() && bright > 0.0 && bright != 1.0, "brightness {bright}");
     assert!(maps.join("noisy.relmse.png").is_file());
     let small = write(&native_frame(8, 8, 3, &[]), dir.path(), "small.exr");
     let out = Command::new(env!("CARGO_BIN_EXE_kpcn"))

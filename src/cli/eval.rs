@@ -106,18 +106,19 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         psnr: rows.iter().map(|r| r.2.psnr).sum::<f64>() / n,
         one_minus_ssim: rows.iter().map(|r| r.2.one_minus_ssim).sum::<f64>() / n,
         relmse_trimmed: [0, 1].map(|k| rows.iter().map(|r| r.2.relmse_trimmed[k]).sum::<f64>() / n),
+        brightness: rows.iter().map(|r| r.2.brightness).sum::<f64>() / n,
     };
     match args.format {
         Format::Table => {
             let width = rows.iter().map(|r| r.0.len()).max().unwrap_or(4).max(4);
             println!(
-                "{:<width$}  {:<10} {:>10} {:>8} {:>8} {:>12} {:>12}",
-                "file", "layer", "relMSE", "PSNR", "1-SSIM", "relMSE-0.1%", "relMSE-1%"
+                "{:<width$}  {:<10} {:>10} {:>8} {:>8} {:>12} {:>12} {:>10}",
+                "file", "layer", "relMSE", "PSNR", "1-SSIM", "relMSE-0.1%", "relMSE-1%", "brightness"
             );
             let line = |f: &str, l: &str, m: &Metrics| {
                 println!(
-                    "{f:<width$}  {l:<10} {:>10.5} {:>8.3} {:>8.5} {:>12.5} {:>12.5}",
-                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1]
+                    "{f:<width$}  {l:<10} {:>10.5} {:>8.3} {:>8.5} {:>12.5} {:>12.5} {:>10.4}",
+                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1], m.brightness
                 )
             };
             for (f, l, m) in &rows {
@@ -128,18 +129,21 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             }
         }
         Format::Csv => {
-            println!("file,layer,relmse,psnr,one_minus_ssim,relmse_drop_worst_0.1pct,relmse_drop_worst_1pct");
+            println!(
+                "file,layer,relmse,psnr,one_minus_ssim,relmse_drop_worst_0.1pct,relmse_drop_worst_1pct,brightness"
+            );
             for (f, l, m) in &rows {
                 println!(
-                    "{f},{l},{},{},{},{},{}",
-                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1]
+                    "{f},{l},{},{},{},{},{},{}",
+                    m.relmse, m.psnr, m.one_minus_ssim, m.relmse_trimmed[0], m.relmse_trimmed[1], m.brightness
                 );
             }
         }
         Format::Json => {
             let metrics = |m: &Metrics| {
                 serde_json::json!({"relmse": m.relmse, "psnr": m.psnr, "one_minus_ssim": m.one_minus_ssim,
-                    "relmse_drop_worst_0.1pct": m.relmse_trimmed[0], "relmse_drop_worst_1pct": m.relmse_trimmed[1]})
+                    "relmse_drop_worst_0.1pct": m.relmse_trimmed[0], "relmse_drop_worst_1pct": m.relmse_trimmed[1],
+                    "brightness": m.brightness})
             };
             let item = |f: &str, l: &str, m: &Metrics| {
                 let mut v = metrics(m);

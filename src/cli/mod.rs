@@ -56,7 +56,8 @@ pub enum Command {
     )]
     Denoise(denoise::DenoiseArgs),
     /// Score images against a reference: relMSE, PSNR and 1 − SSIM (tonemapped as the team's
-    /// Cycles baseline), per file and averaged; optional false-colour error maps.
+    /// Cycles baseline) and brightness (the image's mean over the reference's), per file and
+    /// averaged; optional false-colour error maps.
     #[command(
         after_help = "Examples:\n  kpcn eval --reference shot-ref.exr shot-00016spp.exr shot.den.exr\n  kpcn eval -r ref.exr den.exr --format json --error-maps maps/"
     )]

@@ -14,7 +14,7 @@ pub fn rgb(p: &[Vec<f32>; 3]) -> Rgb<'_> {
     [&p[0], &p[1], &p[2]]
 }
 
-/// The three metrics of one image against its reference.
+/// The metrics of one image against its reference.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Metrics {
     /// Mean of `(x − y)² / (y² + 0.01)` over pixels and channels.
@@ -26,6 +26,10 @@ pub struct Metrics {
     /// relMSE with the image's own worst [`TRIMMED`] shares of pixels dropped (per-pixel
     /// relMSE, RGB mean, ranked): outliers and bulk seen apart.
     pub relmse_trimmed: [f64; 2],
+    /// The image's mean over the reference's (RGB, every pixel): light kept or lost as a
+    /// whole, which relMSE forgives (light missing from a bright pixel costs less than the
+    /// same light put in a dark one).
+    pub brightness: f64,
 }
 
 /// The shares of worst pixels [`Metrics::relmse_trimmed`] drops: 0.1 % and 1 %.
@@ -55,6 +59,16 @@ pub fn relmse(x: Rgb, y: Rgb) -> f64 {
         }
     }
     sum / n.max(1) as f64
+}
+
+/// The mean of `x` over the mean of `y` (RGB, every pixel; non-finite samples of `x` count
+/// as 0, as in [`relmse`]); 1 where `y` is black and `x` is too, infinite where only `y` is.
+pub fn brightness(x: Rgb, y: Rgb) -> f64 {
+    let sum = |p: Rgb, finite_only: bool| -> f64 {
+        p.iter().flat_map(|c| c.iter()).map(|&v| if finite_only && !v.is_finite() { 0.0 } else { v as f64 }).sum()
+    };
+    let (a, b) = (sum(x, true), sum(y, false));
+    if a == b { 1.0 } else { a / b }
 }
 
 /// The display transform of the baseline: Reinhard, gamma 2.2, clamped.
@@ -138,6 +152,7 @@ pub fn metrics(x: Rgb, y: Rgb, w: usize, h: usize) -> Metrics {
         psnr: psnr(x, y),
         one_minus_ssim: ssim.map_or(f64::NAN, |s| 1.0 - s.iter().sum::<f64>() / 3.0),
         relmse_trimmed: TRIMMED.map(|share| relmse_trimmed(x, y, share)),
+        brightness: brightness(x, y),
     }
 }
 
@@ -187,6 +202,18 @@ mod tests {
         let expect = (100.0 + 1.0 / 1.01) / 2.0;
         assert!((relmse(view(&x), view(&y)) - expect).abs() < 1e-9);
         assert_eq!(relmse(view(&y), view(&y)), 0.0);
+    }
+
+    #[test]
+    fn brightness_is_the_ratio_of_means() {
+        let (x, y) = (rgb(&[1.0, 2.0]), rgb(&[3.0, 3.0]));
+        assert!((brightness(view(&x), view(&y)) - 0.5).abs() < 1e-12);
+        // A non-finite sample counts as black, as in relMSE; black against black is 1.
+        let nan = rgb(&[f32::NAN, 3.0]);
+        assert!((brightness(view(&nan), view(&y)) - 0.5).abs() < 1e-12);
+        let black = rgb(&[0.0, 0.0]);
+        assert_eq!(brightness(view(&black), view(&black)), 1.0);
+        assert_eq!(brightness(view(&x), view(&black)), f64::INFINITY);
     }
 
     #[test]
