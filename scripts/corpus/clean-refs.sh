@@ -14,7 +14,8 @@
 #
 # Resumable: a scene whose reference is in OUT is not rendered again, so running it for a
 # second snapshot of the same scenes (the raw files' and the layout's) only rewrites
-# OUT/manifest.csv. Hours (4–12 min a scene at 2,048 spp here): start it with nohup.
+# OUT/manifest.csv. About 3 min a scene at 2,048 spp here, over an hour for 24: start it
+# with nohup.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 usage="usage: scripts/corpus/clean-refs.sh SNAPSHOT OUT [SPP]"
