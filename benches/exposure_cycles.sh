@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # How a model's quality depends on the render's exposure, on the team's Cycles dev set:
-# every noisy frame is multiplied by K (radiance by K, its variances by K²), denoised with
-# MODEL, divided by K again and scored against the unscaled reference, so every K is
-# scored on the same pixels with the same metric (`kpcn eval`'s relMSE). A denoiser that
-# does not care how bright a frame was rendered prints the same row for every K.
+# every noisy frame of every scene in DEV_DIR is multiplied by K (radiance by K, its
+# variances by K²), denoised with MODEL, divided by K again and scored against the unscaled
+# reference, so every K is scored on the same pixels with the same metric (`kpcn eval`'s
+# relMSE). A denoiser that does not care how bright a frame was rendered prints the same row
+# for every K. Needs oiiotool, and python3 with numpy and OpenEXR.
 #
 #   benches/exposure_cycles.sh [MODEL] [K,K,…] [DEV_DIR]     # default: balanced 0.25,1,4
 set -euo pipefail
@@ -16,17 +17,19 @@ trap 'rm -rf "$work"' EXIT
 cargo build --release --quiet
 kpcn=target/release/kpcn
 
-# The multiplier of each channel, in the file's order: K for radiance, K² for its variances.
+# The multiplier of each channel, in the file's order: K for radiance, K² for its variances
+# (benches/light_study.py's, the one home of that rule).
 factors() { # file k
-    oiiotool --info -v "$1" | sed -n 's/.*channel list: //p' | tr -d ' ' | tr ',' '\n' |
-        awk -v k="$2" '/^(R|G|B|colorA\..|diffuse\..|diffuseA\..|specular\..|specularA\..)$/ {print k; next}
-            /^(color|diffuse|specular)Variance/ {print k * k; next} {print 1}' | paste -sd,
+    python3 -c 'import sys; sys.path.insert(0, "benches"); from light_study import scale_factors
+print(scale_factors(sys.argv[1], float(sys.argv[2])))' "$1" "$2"
 }
 IFS=, read -ra ks <<<"$scales"
 printf '%-9s %4s' scene spp
 for k in "${ks[@]}"; do printf ' | relMSE ×%-6s (× OIDN)' "$k"; done
 echo
-for scene in interior spheres; do
+scenes=$(find "$dev" -maxdepth 1 -name '*-ref.exr' -printf '%f\n' | sed 's/-ref\.exr$//' | sort)
+[ -n "$scenes" ] || { echo "exposure_cycles: no SCENE-ref.exr in $dev" >&2; exit 1; }
+for scene in $scenes; do
     for spp in 4 16 64; do
         f=$(printf '%s/%s-%05dspp.exr' "$dev" "$scene" "$spp")
         oidn=$(grep "^$scene,$spp,oidn," "$dev/baseline.csv" | cut -d, -f4)

@@ -5,7 +5,8 @@
 
 For every Cycles scene of SNAPSHOT/manifest.csv, from its highest-spp noisy frame (n spp)
 and its reference (m spp, `kpcn:spp`): the reference's expected error is the frame's,
-times n / (n + m) (as scripts/corpus/assemble.py writes `reference_relmse_floor`). Prints,
+times n / (n + m) (scripts/corpus/assemble.py's `reference_share`, as it writes
+`reference_relmse_floor`). Prints,
 noisiest first, the reference's mean, that floor in relMSE ((x - ref)^2 / (ref^2 + 0.01),
 which scores dim pixels by absolute error) and scale-free (the expected MSE over the
 squared mean: above 1, the reference's per-pixel noise outweighs the light it measures),
@@ -19,6 +20,9 @@ import sys
 import Imath
 import numpy as np
 import OpenEXR
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scripts", "corpus"))
+from assemble import reference_share  # noqa: E402  (one home for the floor)
 
 FLOAT = Imath.PixelType(Imath.PixelType.FLOAT)
 
@@ -49,7 +53,7 @@ def main():
         n = int(r["spp"])
         if m is None:
             sys.exit(f"{r['reference']}: no kpcn:spp: the reference's sample count is needed")
-        share = n / (n + m)
+        share = reference_share(n, m)
         relmse = float(np.mean((x - ref) ** 2 / (ref**2 + 0.01))) * share
         mean = float(ref.mean())
         scale_free = float(np.mean((x - ref) ** 2)) * share / mean**2 if mean > 0 else math.inf

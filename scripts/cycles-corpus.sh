@@ -13,7 +13,7 @@
 #   scripts/cycles-corpus.sh DIR FIRST_SEED COUNT        # e.g. target/cycles-corpus 0 200
 #   scripts/cycles-corpus.sh DIR 100000 16               # the sun-patch series (scene.py)
 #   scripts/cycles-corpus.sh DIR 110000 16               # the aimed sun-patch series
-#   REF_SPP=1024 SPPS=4,16,64 NICE=10 scripts/cycles-corpus.sh …
+#   REF_SPP=512 SPPS=4,16,64 NICE=10 scripts/cycles-corpus.sh …
 #
 # Resumable: a scene is done when its line is in corpus.jsonl; an interrupted scene is
 # redone from the start. Runs for hours: start it with nohup. The data stays out of git.
@@ -23,7 +23,7 @@ cd "$(dirname "$0")/.."
 dir=${1:?usage: scripts/cycles-corpus.sh DIR FIRST_SEED COUNT}
 first=${2:?FIRST_SEED}
 count=${3:?COUNT}
-ref_spp=${REF_SPP:-1024}
+ref_spp=${REF_SPP:-512}
 spps=${SPPS:-4,16,64}
 nice_level=${NICE:-10}
 n_max=${spps##*,}

@@ -22,6 +22,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             conv_size: 3,
             kernel_size: kernel,
             clamp: Default::default(),
+            blend: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),

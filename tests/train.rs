@@ -72,6 +72,7 @@ fn tiny() -> Model {
             conv_size: 3,
             kernel_size: 5,
             clamp: Default::default(),
+            blend: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),

@@ -59,6 +59,13 @@ def relmse(x, ref):
     return float(np.mean((x - ref) ** 2 / (ref**2 + 0.01)))
 
 
+def reference_share(n, n_ref):
+    """The share of an n-spp frame's expected error (against an n_ref-spp reference) that the
+    reference's own noise carries: both are means of independent samples, so the expected
+    squared difference is the sum of their variances, n_ref : n apart."""
+    return n / (n_ref + n)
+
+
 def channels_of(name, value):
     """kpcn's channel names for a quantity: colour is bare R,G,B, depth a lone .Z."""
     if value.shape[-1] == 1:
@@ -129,8 +136,9 @@ def main():
         mse = np.mean((x - ref_rgb) ** 2)
         report[f"relmse_{n}"] = relmse(x, ref_rgb)
         report[f"calibration_{n}"] = float(mse / max(np.mean(planes["colorVariance.Z"]), 1e-30))
-    report["reference_relmse_floor"] = report[f"relmse_{n_max}"] * n_max / (n_ref + n_max)
+    report["reference_relmse_floor"] = report[f"relmse_{n_max}"] * reference_share(n_max, n_ref)
     print(json.dumps(report))
 
 
-main()
+if __name__ == "__main__":
+    main()

@@ -162,6 +162,11 @@ pub fn describe(m: &Model) {
                 }
             };
             println!("  firefly clamp {clamp}");
+            let blend = match a.blend {
+                kpcn::model::ScaleBlend::Lerp => "lerp: (1 − α)·fine + α·up(coarse)",
+                kpcn::model::ScaleBlend::Detail => "detail: fine + α·up(coarse − down(fine)) (Vogels et al. 2018)",
+            };
+            println!("  scale blend   {blend}");
             let specular = match a.specular {
                 kpcn::model::Specular::Log => "log radiance ln(1 + s), output exp(ŝ) − 1 (biased dark)",
                 kpcn::model::Specular::Linear => "linear radiance (energy-preserving)",

@@ -7,7 +7,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kpcn::eval::plot::write_png;
 use kpcn::features::Branch;
 use kpcn::kernel::ops::Ops;
-use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, Specular, Variances};
+use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
 use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
 use kpcn::train::{curves, records};
@@ -42,6 +42,12 @@ pub struct TrainArgs {
     /// stored as `significant`). Default: the preset's or the --init model's.
     #[arg(long, value_enum, value_name = "CLAMP")]
     pub clamp: Option<Clamp>,
+    /// How a multi-scale network blends each scale with the coarser one: `lerp`
+    /// (`(1 − α)·fine + α·up(coarse)`) or `detail` (`fine + α·up(coarse − down(fine))`,
+    /// Vogels et al. 2018: detail finer than the coarse scale stays). Recorded in the
+    /// model. Default: the preset's (lerp) or the --init model's.
+    #[arg(long, value_enum, value_name = "lerp|detail")]
+    pub blend: Option<ScaleBlend>,
     /// What the specular kernels filter: `log` (ln(1 + s), as Bako et al.) or `linear`
     /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or
     /// the --init model's.
@@ -275,6 +281,9 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         }
         if let Some(c) = args.clamp {
             model.arch.clamp = c;
+        }
+        if let Some(b) = args.blend {
+            model.arch.blend = b;
         }
         if let Some(d) = args.specular {
             model.arch.specular = d;

@@ -403,8 +403,7 @@ impl Ops {
         match self {
             Ops::Kpcn => blend(fine, coarse, logits),
             Ops::StockCandle => {
-                let limit = planes::BLEND_LIMIT as f64;
-                let alpha = (logits.clamp(-limit, limit)?.neg()?.exp()? + 1.0)?.recip()?;
+                let alpha = blend_weight_composed(logits)?;
                 let up = up_bilinear_composed(coarse)?;
                 fine.broadcast_mul(&(1.0 - &alpha)?)? + up.broadcast_mul(&alpha)?
             }
@@ -418,6 +417,20 @@ impl Ops {
             Ops::StockCandle => apply_kernels_composed(logits, noisy, k),
         }
     }
+}
+
+/// `fine + α·up(coarse)`, with `α` the sigmoid of `logits` (`[B, 1, H, W]`, clamped to
+/// ±[`planes::BLEND_LIMIT`]) and `up` [`Planes::up_bilinear`]: the detail-keeping blend
+/// ([`planes::add_blended`]), composed of candle ops, which candle's autograd
+/// differentiates.
+pub fn add_blended(fine: &Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Tensor> {
+    fine + up_bilinear_composed(coarse)?.broadcast_mul(&blend_weight_composed(logits)?)?
+}
+
+/// [`planes::blend_weight`] of every logit, composed of candle ops.
+fn blend_weight_composed(logits: &Tensor) -> Result<Tensor> {
+    let limit = planes::BLEND_LIMIT as f64;
+    (logits.clamp(-limit, limit)?.neg()?.exp()? + 1.0)?.recip()
 }
 
 /// [`Planes::up_bilinear`] of `[B, C, H, W]` composed of candle ops: ¾ of each parent

@@ -267,12 +267,24 @@ pub fn blend_weight(l: f32) -> f32 {
 /// becomes `(1 − α)·fine + α·up`, with `α` from [`blend_weight`] of `logits` (one plane
 /// of the same size) and `up` the coarser result upsampled ([`Planes::up_bilinear`]).
 pub fn blend(fine: &mut Planes, up: &Planes, logits: &[f32]) {
+    blend_with(fine, up, logits, |d, u, a| d * (1.0 - a) + u * a);
+}
+
+/// The detail-keeping blend of the multi-scale network, in place: every plane of `fine`
+/// becomes `fine + α·up`, with `α` from [`blend_weight`] of `logits` and `up` the coarser
+/// result less the fine one's 2×2 average, upsampled ([`Planes::up_bilinear`]).
+pub fn add_blended(fine: &mut Planes, up: &Planes, logits: &[f32]) {
+    blend_with(fine, up, logits, |d, u, a| d + u * a);
+}
+
+/// Every value `d` of `fine` becomes `f(d, u, α)`, `u` the same value of `up`.
+fn blend_with(fine: &mut Planes, up: &Planes, logits: &[f32], f: impl Fn(f32, f32, f32) -> f32 + Sync) {
     let n = fine.w * fine.h;
     assert_eq!((up.c, up.w, up.h, logits.len()), (fine.c, fine.w, fine.h, n), "blend operands differ in size");
     let alpha: Vec<f32> = logits.par_iter().map(|&l| blend_weight(l)).collect();
     fine.data.par_chunks_mut(n).zip(up.data.par_chunks(n)).for_each(|(dst, src)| {
         for ((d, &u), &a) in dst.iter_mut().zip(src).zip(&alpha) {
-            *d = *d * (1.0 - a) + u * a;
+            *d = f(*d, u, a);
         }
     });
 }

@@ -27,6 +27,31 @@ pub enum Design {
     MultiScale,
 }
 
+/// How a multi-scale network puts each scale's result together with the coarser one's
+/// (`kpcn:blend`); `α` is the per-pixel blend weight the network predicts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
+pub enum ScaleBlend {
+    /// `(1 − α)·fine + α·up(coarse)`: where `α` is near 1 the fine scale's detail goes
+    /// with its noise.
+    #[default]
+    Lerp,
+    /// `fine + α·up(coarse − down(fine))` (Vogels et al. 2018): the coarse result replaces
+    /// only the fine one's low frequencies, so detail finer than the coarse scale stays
+    /// whatever `α` is. `down` is the 2×2 average, `up` the bilinear upsampling.
+    Detail,
+}
+
+impl ScaleBlend {
+    /// The name in a model file and on the command line.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ScaleBlend::Lerp => "lerp",
+            ScaleBlend::Detail => "detail",
+        }
+    }
+}
+
 /// A network's shape.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Architecture {
@@ -45,6 +70,9 @@ pub struct Architecture {
     pub kernel_size: usize,
     /// How the multi-scale colour pyramid treats isolated fireflies.
     pub clamp: Clamp,
+    /// How a multi-scale network blends each scale with the coarser one (flat: `Lerp`,
+    /// unused).
+    pub blend: ScaleBlend,
     /// Which variance estimates the network was trained on, and is fed.
     pub variances: Variances,
     /// What the specular branch's kernels filter.
@@ -290,6 +318,7 @@ impl Architecture {
             conv_size: 5,
             kernel_size: 21,
             clamp: Default::default(),
+            blend: ScaleBlend::Lerp,
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
@@ -308,6 +337,7 @@ impl Architecture {
             conv_size: 3,
             kernel_size: 11,
             clamp: Default::default(),
+            blend: ScaleBlend::Lerp,
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
@@ -328,6 +358,7 @@ impl Architecture {
             kernel_size: 5,
             // The shipped default's: energy-preserving (BENCHMARKS.md).
             clamp: Clamp::Spread,
+            blend: ScaleBlend::Lerp,
             variances: Variances::File,
             specular: Specular::Log,
             exposure: Default::default(),
@@ -478,6 +509,9 @@ impl Architecture {
         }
         if self.design == Design::MultiScale && (self.kind != Kind::Kpcn || self.layers > 6) {
             return bad(format!("a multi-scale network is KPCN with 1–6 levels, not {self:?}"));
+        }
+        if self.blend != ScaleBlend::Lerp && self.design != Design::MultiScale {
+            return bad(format!("a flat network has no scales to blend, not {self:?}"));
         }
         if self.specular == Specular::Linear && self.design != Design::MultiScale {
             return bad(format!("linear specular kernels are for multi-scale networks, not {self:?}"));

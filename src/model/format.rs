@@ -1,7 +1,9 @@
 //! The model file: safetensors with the weights of both branches and the architecture in
 //! its metadata (`kpcn:*` keys), read and written atomically.
 
-use super::{Architecture, BranchWeights, Clamp, Design, Exposure, Kind, Model, ModelError, Specular, Variances};
+use super::{
+    Architecture, BranchWeights, Clamp, Design, Exposure, Kind, Model, ModelError, ScaleBlend, Specular, Variances,
+};
 use crate::features::{Branch, INPUT_LAYOUT};
 use candle_core::{DType, Device, Tensor};
 use std::collections::HashMap;
@@ -25,6 +27,7 @@ impl Architecture {
             ("kpcn:conv_size", self.conv_size.to_string()),
             ("kpcn:kernel_size", self.kernel_size.to_string()),
             ("kpcn:clamp", self.clamp.name().to_string()),
+            ("kpcn:blend", self.blend.name().to_string()),
             ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
             ("kpcn:specular", (if self.specular == Specular::Linear { "linear" } else { "log" }).to_string()),
             ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
@@ -87,6 +90,12 @@ impl Architecture {
                 Some("fine-pairs-twice") => Clamp::FinePairsTwice,
                 Some("significant") => Clamp::Significant,
                 Some(other) => return Err(err(format!("unknown firefly clamp `{other}`"))),
+            },
+            // Files from before the choice blend by interpolation.
+            blend: match m.get("kpcn:blend").map(String::as_str) {
+                None | Some("lerp") => ScaleBlend::Lerp,
+                Some("detail") => ScaleBlend::Detail,
+                Some(other) => return Err(err(format!("unknown scale blend `{other}`"))),
             },
             // Files from before the choice were trained on the files' variances.
             variances: match m.get("kpcn:variances").map(String::as_str) {

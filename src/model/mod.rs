@@ -16,7 +16,8 @@ pub mod registry;
 pub mod stream;
 
 pub use architecture::{
-    Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, Specular, Variances,
+    Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, ScaleBlend, Specular,
+    Variances,
 };
 pub use format::{FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, write_atomically};
 
@@ -163,6 +164,7 @@ mod tests {
             conv_size: 3,
             kernel_size: 1,
             clamp: Default::default(),
+            blend: Default::default(),
             variances: Default::default(),
             specular: Default::default(),
             exposure: Default::default(),
@@ -212,6 +214,7 @@ mod tests {
                 conv_size: 3,
                 kernel_size: 3,
                 clamp: Default::default(),
+                blend: Default::default(),
                 variances: Default::default(),
                 specular: Default::default(),
                 exposure: Default::default(),
@@ -237,6 +240,26 @@ mod tests {
         assert!(e.contains("input layout `kpcn28-2019`"), "{e}");
         let e = Model::from_bytes(b"not a model", "junk.safetensors").unwrap_err().to_string();
         assert!(e.contains("junk.safetensors: not a safetensors file"), "{e}");
+    }
+
+    #[test]
+    fn the_scale_blend_is_written_read_and_checked() {
+        let m = Model::xavier(Architecture { blend: ScaleBlend::Detail, ..Architecture::multiscale() }, 5).unwrap();
+        assert_eq!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.blend, ScaleBlend::Detail);
+        // A file from before the choice interpolates.
+        let mut meta = m.arch.metadata();
+        meta.remove("kpcn:blend");
+        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+        let e = Model::from_bytes(&safetensors::serialize([("x", &t)], Some(meta.clone())).unwrap(), "old.safetensors");
+        // Its weights are missing, but its architecture was read: the error is about them.
+        let e = e.unwrap_err().to_string();
+        assert!(!e.contains("blend"), "{e}");
+        meta.insert("kpcn:blend".into(), "swirl".into());
+        let e = Model::from_bytes(&safetensors::serialize([("x", &t)], Some(meta)).unwrap(), "odd.safetensors");
+        let e = e.unwrap_err().to_string();
+        assert!(e.contains("odd.safetensors") && e.contains("unknown scale blend `swirl`"), "{e}");
+        let flat = Architecture { blend: ScaleBlend::Detail, ..Architecture::small(Kind::Kpcn) };
+        assert!(flat.validate("mem").unwrap_err().to_string().contains("no scales to blend"));
     }
 
     #[test]

@@ -3,9 +3,12 @@
 //! applied to the noisy colour at that scale ([`colour_pyramid`]: isolated fireflies
 //! clamped to their neighbours, then 2×2 box averages), and the scales are blended
 //! coarse to fine, `r_s = (1 − α_s)·o_s + α_s·up(r_{s+1})`, with `α_s` a predicted
-//! sigmoid and `up` bilinear. The clamp, softmax kernels, box averages, bilinear
-//! weights and the blend all pick or average values of the neighbourhood, so the output
-//! stays inside the range of the noisy colour around the pixel, like the paper's KPCN.
+//! sigmoid and `up` bilinear ([`ScaleBlend::Lerp`]). The clamp, softmax kernels, box
+//! averages, bilinear weights and that blend all pick or average values of the
+//! neighbourhood, so the output stays inside the range of the noisy colour around the
+//! pixel, like the paper's KPCN. [`ScaleBlend::Detail`] blends as Vogels et al. 2018,
+//! `r_s = o_s + α_s·up(r_{s+1} − down(o_s))`, which keeps the fine scale's detail but not
+//! that range.
 //!
 //! The network runs at full resolution for two 3×3 layers and a 1×1 head only; the rest
 //! is at ½…⅛ resolution: 93 kFLOP per pixel for both branches, against 319 k for the
@@ -22,7 +25,7 @@
 //! candle tensors for training ([`Graph`], differentiable) and plain planes for
 //! inference (`super::pyramid`). Both call the same kernels.
 
-use super::{Architecture, BranchWeights, Clamp, ModelError, SIGNIFICANT_ERRORS};
+use super::{Architecture, BranchWeights, Clamp, ModelError, SIGNIFICANT_ERRORS, ScaleBlend};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::ops::Ops;
 use crate::kernel::planes::Planes;
@@ -121,9 +124,10 @@ pub fn receptive_radius(a: &Architecture) -> usize {
     for s in (0..l).rev() {
         let logits = if s == 0 { union(up_nearest(feats[1], 0), enc[0]) } else { feats[s] };
         let o = union(logits, grow(colour[s], r * px(s)));
-        out = Some(match out {
-            None => o,
-            Some(coarse) => union(o, up_bilinear(coarse, s)),
+        out = Some(match (out, a.blend) {
+            (None, _) => o,
+            (Some(coarse), ScaleBlend::Lerp) => union(o, up_bilinear(coarse, s)),
+            (Some(coarse), ScaleBlend::Detail) => union(o, up_bilinear(union(coarse, pool(o, s)), s)),
         });
     }
     let (lo, hi) = out.expect("at least one level");
@@ -227,7 +231,12 @@ pub trait Backend {
     /// extended by replicating its edges.
     fn apply(&self, logits: &Self::Value, colour: &Self::Value) -> Result<Self::Value, Self::Error>;
 
-    /// `(1 − α)·fine + α·up(coarse)`, with `α` the sigmoid of channel `k²` of `logits`.
+    /// `a − b` (the same shape).
+    fn sub(&self, a: &Self::Value, b: &Self::Value) -> Result<Self::Value, Self::Error>;
+
+    /// With `α` the sigmoid of channel `k²` of `logits`: `(1 − α)·fine + α·up(coarse)`
+    /// ([`ScaleBlend::Lerp`]), or `fine + α·up(coarse)` ([`ScaleBlend::Detail`], whose
+    /// `coarse` is already the coarser result less `down(fine)`).
     fn blend(&self, fine: Self::Value, coarse: &Self::Value, logits: &Self::Value) -> Result<Self::Value, Self::Error>;
 }
 
@@ -263,9 +272,13 @@ pub fn run<B: Backend>(a: &Architecture, b: &B, input: B::Value, noisy: B::Value
             b.conv(feat(s), head + j, false)?
         };
         let o = b.apply(&logits, &colour[s])?;
-        out = Some(match out {
-            None => o,
-            Some(coarse) => b.blend(o, &coarse, &logits)?,
+        out = Some(match (out, a.blend) {
+            (None, _) => o,
+            (Some(coarse), ScaleBlend::Lerp) => b.blend(o, &coarse, &logits)?,
+            (Some(coarse), ScaleBlend::Detail) => {
+                let rest = b.sub(&coarse, &b.pool(&o)?)?;
+                b.blend(o, &rest, &logits)?
+            }
         });
     }
     Ok(out.expect("validated: at least one level"))
@@ -323,9 +336,17 @@ impl Backend for Graph<'_> {
         Ok(self.ops.apply_kernels(&logits.narrow(1, 0, k * k)?, &padded, k)?)
     }
 
+    fn sub(&self, a: &Tensor, b: &Tensor) -> Result<Tensor, ModelError> {
+        Ok((a - b)?)
+    }
+
     fn blend(&self, fine: Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Tensor, ModelError> {
         let k2 = self.arch.kernel_size * self.arch.kernel_size;
-        Ok(self.ops.blend(&fine, coarse, &logits.narrow(1, k2, 1)?)?)
+        let logits = logits.narrow(1, k2, 1)?;
+        Ok(match self.arch.blend {
+            ScaleBlend::Lerp => self.ops.blend(&fine, coarse, &logits)?,
+            ScaleBlend::Detail => crate::kernel::ops::add_blended(&fine, coarse, &logits)?,
+        })
     }
 }
 

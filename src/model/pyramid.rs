@@ -5,10 +5,10 @@
 //! of rows; the tests here and there run it on a whole region at once.
 
 use super::multiscale::{self, Backend};
-use super::{Architecture, BranchWeights, ModelError};
+use super::{Architecture, BranchWeights, ModelError, ScaleBlend};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::conv::{ConvLayer, conv, conv_up_concat};
-use crate::kernel::planes::{Planes, blend};
+use crate::kernel::planes::{Planes, add_blended, blend};
 use rayon::prelude::*;
 
 /// Working bytes per region pixel, for tile budgets: the input, two full-resolution
@@ -126,9 +126,29 @@ impl Backend for Region<'_> {
         Ok(apply_replicated(logits, colour, self.arch.kernel_size))
     }
 
+    fn sub(&self, a: &Planes, b: &Planes) -> Result<Planes, Self::Error> {
+        Ok(difference(a, b))
+    }
+
     fn blend(&self, mut fine: Planes, coarse: &Planes, logits: &Planes) -> Result<Planes, Self::Error> {
-        blend(&mut fine, &coarse.up_bilinear(), logits.plane(self.arch.kernel_size * self.arch.kernel_size));
+        blend_scales(self.arch, &mut fine, &coarse.up_bilinear(), logits);
         Ok(fine)
+    }
+}
+
+/// `a − b`, plane by plane (the same shape).
+fn difference(a: &Planes, b: &Planes) -> Planes {
+    assert_eq!((a.c, a.w, a.h), (b.c, b.w, b.h), "difference of planes of different sizes");
+    Planes::from_vec(a.c, a.w, a.h, a.data.iter().zip(&b.data).map(|(x, y)| x - y).collect())
+}
+
+/// `fine` blended in place with `up`, the coarser result already upsampled, by the blend
+/// logit of `logits` (its plane `k²`), as the architecture blends ([`ScaleBlend`]).
+pub(super) fn blend_scales(arch: &Architecture, fine: &mut Planes, up: &Planes, logits: &Planes) {
+    let l = logits.plane(arch.kernel_size * arch.kernel_size);
+    match arch.blend {
+        ScaleBlend::Lerp => blend(fine, up, l),
+        ScaleBlend::Detail => add_blended(fine, up, l),
     }
 }
 
@@ -173,12 +193,17 @@ pub(super) fn apply_rows<'c>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Architecture, Model};
+    use crate::model::{Architecture, Model, ScaleBlend};
     use candle_core::{Device, Tensor};
 
     #[test]
     fn our_kernels_match_the_candle_definition() {
-        let arch = Architecture::multiscale();
+        for blend in [ScaleBlend::Lerp, ScaleBlend::Detail] {
+            matches_candle(Architecture { blend, ..Architecture::multiscale() });
+        }
+    }
+
+    fn matches_candle(arch: Architecture) {
         let m = Model::xavier(arch, 5).unwrap();
         let (w, h) = (48, 40);
         let mut rng = crate::rng::SplitMix64(9);
@@ -194,7 +219,74 @@ mod tests {
             for c in 0..3 {
                 for i in 0..w * h {
                     let (a, b) = (ours[c][i], theirs[c * w * h + i]);
-                    assert!((a - b).abs() < 1e-4 * (1.0 + b.abs()), "{branch} channel {c} pixel {i}: {a} vs {b}");
+                    assert!(
+                        (a - b).abs() < 1e-4 * (1.0 + b.abs()),
+                        "{:?} {branch} channel {c} pixel {i}: {a} vs {b}",
+                        arch.blend
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_detail_blend_keeps_what_is_finer_than_the_coarse_scale() {
+        // A checkerboard of 0.2 and 1.0 at the fine scale, a flat 0.5 at the coarse one
+        // (what its 2×2 average, 0.6, is brought to), the blend weight saturated at 1.
+        let (w, h) = (8, 8);
+        let fine =
+            Planes::from_vec(1, w, h, (0..w * h).map(|i| if (i % w + i / w) % 2 == 0 { 0.2 } else { 1.0 }).collect());
+        let coarse = Planes::from_vec(1, w / 2, h / 2, vec![0.5; w * h / 4]);
+        let mut logits = Planes::zeros(26, w, h);
+        logits.data[25 * w * h..].fill(30.0);
+        let arch = |blend| Architecture { blend, ..Architecture::multiscale() };
+        let region = |a: &Architecture| {
+            // Only the blend runs: the weights are never read.
+            let weights = Weights::new(a, &Model::xavier(*a, 0).unwrap().diffuse).unwrap();
+            let r = Region { arch: a, weights: &weights };
+            match a.blend {
+                ScaleBlend::Lerp => r.blend(fine.clone(), &coarse, &logits),
+                ScaleBlend::Detail => r.blend(fine.clone(), &r.sub(&coarse, &fine.avg_pool2()).unwrap(), &logits),
+            }
+            .unwrap()
+        };
+        // Interpolated, the result is the coarse scale: the pattern is gone.
+        let lerp = region(&arch(ScaleBlend::Lerp));
+        assert!(lerp.data.iter().all(|&v| (v - 0.5).abs() < 1e-6), "{:?}", lerp.data);
+        // With the detail blend, the pattern keeps its full contrast about the new mean.
+        let detail = region(&arch(ScaleBlend::Detail));
+        for (i, (&d, &f)) in detail.data.iter().zip(&fine.data).enumerate() {
+            assert!((d - (f - 0.1)).abs() < 1e-6, "pixel {i}: {d}, want {}", f - 0.1);
+        }
+    }
+
+    #[test]
+    fn a_detail_blended_region_equals_the_whole_frame_inside_its_receptive_radius() {
+        // The receptive radius bounds what a region's edge can change: the halo tiles and
+        // bands are evaluated with.
+        let arch = Architecture { blend: ScaleBlend::Detail, ..Architecture::multiscale() };
+        let m = Model::xavier(arch, 3).unwrap();
+        let weights = Weights::new(&arch, &m.diffuse).unwrap();
+        let (r, a) = (arch.feature_radius(), arch.alignment());
+        let (w, h) = (2 * r + 2 * a, 2 * r + 2 * a);
+        let mut rng = crate::rng::SplitMix64(4);
+        let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
+        let noisy: Vec<f32> = (0..3 * w * h).map(|_| rng.uniform_f32() * 2.0).collect();
+        let whole = forward(&arch, &weights, input.clone(), noisy.clone(), w, h);
+        // The frame less one aligned band on every side.
+        let (x0, sw, sh) = (a, w - 2 * a, h - 2 * a);
+        let crop = |planes: &[f32], c: usize| -> Vec<f32> {
+            (0..c)
+                .flat_map(|ch| (x0..x0 + sh).flat_map(move |y| (x0..x0 + sw).map(move |x| (ch, y, x))))
+                .map(|(ch, y, x)| planes[(ch * h + y) * w + x])
+                .collect()
+        };
+        let part = forward(&arch, &weights, crop(&input, INPUT_CHANNELS), crop(&noisy, 3), sw, sh);
+        for c in 0..3 {
+            for y in r..sh - r {
+                for x in r..sw - r {
+                    let (p, f) = (part[c][y * sw + x], whole[c][(y + x0) * w + x + x0]);
+                    assert!((p - f).abs() <= 1e-5 * (1.0 + f.abs()), "channel {c} at ({x}, {y}): {p} vs {f}");
                 }
             }
         }

@@ -13,8 +13,8 @@
 
 use super::Architecture;
 use super::multiscale::{self, Backend};
-use super::pyramid::{Region, Weights, apply_rows};
-use crate::kernel::planes::{Planes, blend};
+use super::pyramid::{Region, Weights, apply_rows, blend_scales};
+use crate::kernel::planes::Planes;
 use std::cell::RefCell;
 use std::collections::VecDeque;
 
@@ -66,6 +66,11 @@ enum Op {
     Apply {
         logits: usize,
         colour: usize,
+    },
+    /// `a − b`, rows alike.
+    Sub {
+        a: usize,
+        b: usize,
     },
     Blend {
         fine: usize,
@@ -156,6 +161,10 @@ impl Backend for Recorder {
 
     fn apply(&self, logits: &usize, colour: &usize) -> Result<usize, Self::Error> {
         Ok(self.add(Op::Apply { logits: *logits, colour: *colour }, self.level(*logits)))
+    }
+
+    fn sub(&self, a: &usize, b: &usize) -> Result<usize, Self::Error> {
+        Ok(self.add(Op::Sub { a: *a, b: *b }, self.level(*a)))
     }
 
     fn blend(&self, fine: usize, coarse: &usize, logits: &usize) -> Result<usize, Self::Error> {
@@ -274,6 +283,7 @@ impl<'a> Stream<'a> {
                 let r = self.arch.kernel_size / 2;
                 vec![(logits, a, b), clip(colour, ai - r as isize, b2 + r)]
             }
+            Op::Sub { a: x, b: y } => vec![(x, a, b), (y, a, b)],
             Op::Blend { fine, coarse, logits } => {
                 vec![(fine, a, b), (logits, a, b), clip(coarse, (a / 2) as isize - 1, (b - 1) / 2 + 2)]
             }
@@ -428,11 +438,12 @@ impl<'a> Stream<'a> {
                     self.arch.kernel_size,
                 )
             }
+            Op::Sub { .. } => ok(r.sub(&window(0).0, &window(1).0)),
             Op::Blend { .. } => {
                 let (mut fine, logits, (coarse, lo)) = (window(0).0, window(1).0, window(2));
                 let up = coarse.up_bilinear();
                 let up = crop(&up, a - 2 * lo, b - 2 * lo);
-                blend(&mut fine, &up, logits.plane(self.arch.kernel_size * self.arch.kernel_size));
+                blend_scales(self.arch, &mut fine, &up, &logits);
                 fine
             }
         }
@@ -447,6 +458,7 @@ fn inputs(op: &Op) -> Vec<usize> {
         Op::UpConcat { coarse, skip, .. } => vec![skip, coarse],
         Op::Colour { noisy, .. } => vec![noisy],
         Op::Apply { logits, colour } => vec![logits, colour],
+        Op::Sub { a, b } => vec![a, b],
         Op::Blend { fine, coarse, logits } => vec![fine, logits, coarse],
     }
 }
@@ -472,9 +484,11 @@ mod tests {
 
     #[test]
     fn a_stream_holds_at_most_its_estimate() {
-        for preset in ["balanced", "compact", "high", "fast"] {
+        use crate::model::ScaleBlend;
+        let presets = ["balanced", "compact", "high", "fast"].map(|p| (p, ScaleBlend::Lerp));
+        for (preset, blend) in presets.into_iter().chain([("balanced", ScaleBlend::Detail)]) {
             let model = Model::resolve(preset).unwrap();
-            let arch = model.arch;
+            let arch = Architecture { blend, ..model.arch };
             let weights = Weights::new(&arch, &model.specular).unwrap();
             let (w, h) = (256, 1024);
             // Both steps a frame's width may choose, on a narrow region to stay quick.
@@ -488,8 +502,11 @@ mod tests {
                     most = most.max(s.held_bytes());
                 }
                 let estimate = held_rows_with(&arch, step) * w * pyramid::bytes_per_pixel(&arch);
-                println!("{preset}, steps of {step} rows: held at most {most} B, estimated {estimate} B");
-                assert!(most <= estimate, "{preset}, steps of {step}: held {most} B, estimated {estimate} B");
+                println!("{preset} ({blend:?}), steps of {step} rows: held at most {most} B, estimated {estimate} B");
+                assert!(
+                    most <= estimate,
+                    "{preset} ({blend:?}), steps of {step}: held {most} B, estimated {estimate} B"
+                );
                 // And far below the whole region's.
                 assert!(8 * most < h * w * pyramid::bytes_per_pixel(&arch), "{preset}: held {most} B");
             }
@@ -498,9 +515,12 @@ mod tests {
 
     #[test]
     fn a_streamed_region_equals_the_whole_region_bit_for_bit() {
-        for (preset, seed) in [("balanced", 0), ("compact", 1)] {
+        use crate::model::ScaleBlend;
+        for (preset, blend, seed) in
+            [("balanced", ScaleBlend::Lerp, 0), ("compact", ScaleBlend::Lerp, 1), ("balanced", ScaleBlend::Detail, 2)]
+        {
             let model = Model::resolve(preset).unwrap();
-            let arch = model.arch;
+            let arch = Architecture { blend, ..model.arch };
             let (w, h) = (64, 6 * arch.alignment().max(32));
             let mut rng = crate::rng::SplitMix64(seed);
             let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
@@ -540,7 +560,7 @@ mod tests {
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert!(
                         bits(&got[c]) == bits(&whole[c]),
-                        "{preset}, {rows_per_push} rows a push, steps of {step}: channel {c} differs"
+                        "{preset} ({blend:?}), {rows_per_push} rows a push, steps of {step}: channel {c} differs"
                     );
                 }
             }

@@ -116,6 +116,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         conv_size: 3,
         kernel_size: 3,
         clamp: Default::default(),
+        blend: Default::default(),
         variances: Default::default(),
         specular: Default::default(),
         exposure: Default::default(),
