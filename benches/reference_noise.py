@@ -17,23 +17,20 @@ import math
 import os
 import sys
 
-import Imath
 import numpy as np
 import OpenEXR
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scripts", "corpus"))
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [HERE, os.path.join(HERE, "..", "scripts", "corpus")]
 from assemble import reference_share  # noqa: E402  (one home for the floor)
-
-FLOAT = Imath.PixelType(Imath.PixelType.FLOAT)
+from light_study import read as read_channels, relmse as relmse_of, rgb as layer  # noqa: E402
 
 
 def read(path):
-    f = OpenEXR.InputFile(path)
-    dw = f.header()["dataWindow"]
-    w, h = dw.max.x - dw.min.x + 1, dw.max.y - dw.min.y + 1
-    spp = f.header().get("kpcn:spp")
-    rgb = np.stack([np.frombuffer(f.channel(c, FLOAT), np.float32).reshape(h, w).astype(np.float64) for c in "RGB"], -1)
-    return rgb, (int(spp.decode() if isinstance(spp, bytes) else spp) if spp is not None else None)
+    """The root R,G,B of `path` and its `kpcn:spp` (None without one)."""
+    spp = OpenEXR.InputFile(path).header().get("kpcn:spp")
+    spp = int(spp.decode() if isinstance(spp, bytes) else spp) if spp is not None else None
+    return read_channels(path, layer("")), spp
 
 
 def main():
@@ -54,7 +51,7 @@ def main():
         if m is None:
             sys.exit(f"{r['reference']}: no kpcn:spp: the reference's sample count is needed")
         share = reference_share(n, m)
-        relmse = float(np.mean((x - ref) ** 2 / (ref**2 + 0.01))) * share
+        relmse = relmse_of(x, ref) * share
         mean = float(ref.mean())
         scale_free = float(np.mean((x - ref) ** 2)) * share / mean**2 if mean > 0 else math.inf
         out.append((scale_free, scene, mean, relmse))
