@@ -343,4 +343,30 @@ fn model_bound_rewrites_each_branchs_bound_and_info_shows_them() {
         "x.safetensors",
     ]);
     assert!(!out.status.success() && text(&out.stderr).contains("no-such-model.safetensors: cannot read the model"));
+    // The diffuse ceiling's take dropped (the default's), or spread; only a diffuse ceiling
+    // has one.
+    assert!(info.contains("what the ceiling takes is dropped"), "{info}");
+    let spread = path("spread.safetensors");
+    let o = kpcn(&["model", "bound", &both, "--branch", "diffuse", "--errors", "1", "--spread", "7", "-o", &spread]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let info = text(&kpcn(&["model", "info", &spread]).stdout);
+    assert!(info.contains("brightened at most 1") && info.contains("spread over the 15×15 window"), "{info}");
+    for args in [["--branch", "specular", "--errors", "2"], ["--branch", "diffuse", "--errors", "0"]] {
+        let out = kpcn(&[&["model", "bound", &both][..], &args, &["--spread", "7", "-o", "x.safetensors"]].concat());
+        assert!(!out.status.success() && text(&out.stderr).contains("--spread spreads"), "{}", text(&out.stderr));
+    }
+    let out = kpcn(&[
+        "model",
+        "bound",
+        &both,
+        "--branch",
+        "diffuse",
+        "--errors",
+        "1",
+        "--spread",
+        "16",
+        "-o",
+        "x.safetensors",
+    ]);
+    assert!(!out.status.success() && text(&out.stderr).contains("at most 15"), "{}", text(&out.stderr));
 }

@@ -28,6 +28,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         },
         3,
     )

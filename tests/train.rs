@@ -78,6 +78,7 @@ fn tiny() -> Model {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         },
         1,
     )

@@ -1,11 +1,11 @@
 //! `kpcn model`: inspect model files and create initial (untrained) ones.
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use kpcn::features::Branch;
 use kpcn::model::{
-    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_bound, model_file_with_clamp, registry,
-    write_atomically,
+    Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_bound, model_file_with_clamp,
+    model_file_with_spread, registry, write_atomically,
 };
 use std::path::PathBuf;
 
@@ -71,6 +71,12 @@ pub enum ModelAction {
         /// across an edge into the dark side. 0 lifts the bound.
         #[arg(long, value_name = "ERRORS")]
         errors: u8,
+        /// Diffuse only: where the light the ceiling takes goes. Shared out over the
+        /// (2 RADIUS + 1)² window around the pixel it came from, in proportion to the noisy
+        /// light there (each pixel's 3×3 median), so that the frame keeps its light and light
+        /// carried off a sun patch goes back to it; 0 (the default) drops it. At most 15.
+        #[arg(long, value_name = "RADIUS", default_value_t = 0)]
+        spread: u8,
         /// Output file (.safetensors).
         #[arg(short, long)]
         output: PathBuf,
@@ -186,6 +192,14 @@ pub fn describe(m: &Model) {
                 ),
                 None => println!("  diffuse       unbounded (as far as its kernels take it)"),
             }
+            match a.diffuse_spread {
+                Some(r) => println!(
+                    "  diffuse       what the ceiling takes spread over the {0}×{0} window around it (the light kept)",
+                    2 * r as usize + 1
+                ),
+                None if a.diffuse_bound.is_some() => println!("  diffuse       what the ceiling takes is dropped"),
+                None => {}
+            }
         }
     }
     let variances = match a.variances {
@@ -225,9 +239,18 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());
         }
-        ModelAction::Bound { model, branch, errors, output } => {
+        ModelAction::Bound { model, branch, errors, spread, output } => {
             let errors = Some(*errors).filter(|&k| k > 0);
-            let rewritten = model_file_with_bound(&model_bytes(model)?, *branch, errors, model)?;
+            let spread = Some(*spread).filter(|&r| r > 0);
+            if spread.is_some() && (*branch != Branch::Diffuse || errors.is_none()) {
+                bail!(
+                    "--spread spreads what the diffuse ceiling takes: give it with --branch diffuse and --errors 1 or more"
+                );
+            }
+            let mut rewritten = model_file_with_bound(&model_bytes(model)?, *branch, errors, model)?;
+            if *branch == Branch::Diffuse && errors.is_some() {
+                rewritten = model_file_with_spread(&rewritten, spread, model)?;
+            }
             write_atomically(output, &rewritten)
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());

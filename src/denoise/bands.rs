@@ -50,7 +50,10 @@ impl Bands {
         // rows being written, beside the streams.
         let by_budget =
             if denoiser.streams(width) && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
-        let rows = band_rows.unwrap_or(by_budget).max(1).next_multiple_of(denoiser.model().arch.alignment());
+        // A streamed band's spread reads its neighbours' rows only.
+        let spread = super::Bounds::spread_context(&denoiser.model().arch);
+        let rows =
+            band_rows.unwrap_or(by_budget).max(spread).max(1).next_multiple_of(denoiser.model().arch.alignment());
         let rows = rows.min(height.max(1));
         let bands = (0..height).step_by(rows).map(|a| a..(a + rows).min(height)).collect();
         let mirrored = if denoiser.streams(width) { FrameStream::mirrored_rows(denoiser, height) + 1 } else { 0 };
@@ -102,7 +105,8 @@ impl Bands {
         if denoiser.streams(self.width) {
             return 1;
         }
-        denoiser.band_tiles(self.width, self.inner(band), self.with_context(band).len()).len()
+        let rows = self.with_context(band).len();
+        denoiser.band_tiles(self.width, denoiser.spread_rows(self.inner(band), rows), rows).len()
     }
 
     /// Tiles of the frame.
@@ -243,27 +247,80 @@ mod tests {
         images.inputs().unwrap()
     }
 
+    /// `component` of `fb` denoised by `d` in bands of 16 rows (several), streamed.
+    fn streamed(
+        d: &Denoiser,
+        fb: &FrameBuffers,
+        variances: bool,
+        component: fn(Denoised) -> [Vec<f32>; 3],
+    ) -> [Vec<f32>; 3] {
+        let (w, h) = (fb.width(), fb.height());
+        let bands = Bands::new(d, w, h, Some(16));
+        assert!(bands.len() > 1, "several bands");
+        let mut got: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0f32; w * h]);
+        let mut read = |rows: Range<usize>| Ok::<_, DenoiseError>(host_rows(fb, rows, variances));
+        let mut write = |rows: Range<usize>, r: Denoised| {
+            for (g, p) in got.iter_mut().zip(component(r)) {
+                g[rows.start * w..rows.end * w].copy_from_slice(&p);
+            }
+            Ok(())
+        };
+        d.denoise_streamed(&bands, &mut read, &mut write, &|_| true).unwrap();
+        got
+    }
+
     #[test]
     fn streamed_bands_equal_the_whole_frame_bit_for_bit() {
         let fb = FrameBuffers::read(std::path::Path::new("examples/data/spheres-crop-00016spp.exr")).unwrap();
-        let (w, h) = (fb.width(), fb.height());
+        let h = fb.height();
         for (model, variances) in [("spatial", false), ("balanced", true), ("compact", false)] {
             let d = Denoiser::new(Model::resolve(model).unwrap(), Options::default()).unwrap();
             let whole = d.denoise(&host_rows(&fb, 0..h, variances), &|_| true).unwrap();
-            let bands = Bands::new(&d, w, h, Some(16));
-            assert!(bands.len() > 1, "{model}: several bands");
-            let mut got = [vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]];
-            let mut read = |rows: Range<usize>| Ok::<_, DenoiseError>(host_rows(&fb, rows, variances));
-            let mut write = |rows: Range<usize>, r: Denoised| {
-                for (g, p) in got.iter_mut().zip(&r.color) {
-                    g[rows.start * w..rows.end * w].copy_from_slice(p);
-                }
-                Ok(())
-            };
-            d.denoise_streamed(&bands, &mut read, &mut write, &|_| true).unwrap();
+            let got = streamed(&d, &fb, variances, |r| r.color);
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             for (c, (g, w)) in got.iter().zip(&whole.color).enumerate() {
                 assert!(bits(g) == bits(w), "{model}: channel {c} differs");
+            }
+        }
+    }
+
+    /// `balanced` under a ceiling of one standard error, its take spread over 15×15.
+    fn spreading() -> Model {
+        use crate::features::Branch;
+        use crate::model::{model_file_with_bound, model_file_with_spread};
+        let bytes = Model::resolve("balanced").unwrap().to_bytes().unwrap();
+        let bytes = model_file_with_bound(&bytes, Branch::Diffuse, Some(1), "mem").unwrap();
+        Model::from_bytes(&model_file_with_spread(&bytes, Some(7), "mem").unwrap(), "mem").unwrap()
+    }
+
+    #[test]
+    fn a_spread_gives_banded_frames_the_whole_frames_light_bit_for_bit() {
+        // Streamed bands (the next band's first rows send light up), and bands in tiles
+        // with context rows (a budget too small to stream the network).
+        let fb = FrameBuffers::read(std::path::Path::new("examples/data/spheres-crop-00016spp.exr")).unwrap();
+        let h = fb.height();
+        let inputs = host_rows(&fb, 0..h, true);
+        let with = |f: fn(&mut Model)| {
+            let mut m = spreading();
+            f(&mut m);
+            Denoiser::new(m, Options::default()).unwrap().denoise(&inputs, &|_| true).unwrap()
+        };
+        let dropped = with(|m| m.arch.diffuse_spread = None);
+        let unbounded = with(|m| (m.arch.diffuse_spread, m.arch.diffuse_bound) = (None, None));
+        let total = |d: &Denoised| d.diffuse.iter().flatten().map(|&v| v as f64).sum::<f64>();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for options in [Options::default(), Options { max_memory_mb: 1, tile_size: Some(64), ..Options::default() }] {
+            let d = Denoiser::new(spreading(), options).unwrap();
+            let whole = d.denoise(&inputs, &|_| true).unwrap();
+            let moved: f32 = (0..3)
+                .map(|c| whole.diffuse[c].iter().zip(&dropped.diffuse[c]).map(|(a, b)| (a - b).abs()).sum::<f32>())
+                .sum();
+            assert!(moved > 0.0, "the ceiling takes light here and the spread moves it");
+            let (kept, all) = (total(&whole), total(&unbounded));
+            assert!((kept - all).abs() <= 1e-5 * all && total(&dropped) < all, "{kept} kept of {all}");
+            let got = streamed(&d, &fb, true, |r| r.diffuse);
+            for (c, (g, w)) in got.iter().zip(&whole.diffuse).enumerate() {
+                assert!(bits(g) == bits(w), "{} MB: channel {c} differs", d.options.max_memory_mb);
             }
         }
     }

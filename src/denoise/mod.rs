@@ -117,6 +117,19 @@ pub enum Component {
 }
 
 impl Denoised {
+    /// Rows `rows` of it.
+    fn rows(self, rows: std::ops::Range<usize>) -> Denoised {
+        let (w, h) = (self.width, rows.len());
+        let cut = |p: [Vec<f32>; 3]| p.map(|v| v[rows.start * w..rows.end * w].to_vec());
+        Denoised {
+            width: w,
+            height: h,
+            color: cut(self.color),
+            diffuse: cut(self.diffuse),
+            specular: cut(self.specular),
+        }
+    }
+
     /// The planes of `component`.
     pub fn component(&self, component: Component) -> &[Vec<f32>; 3] {
         match component {
@@ -258,12 +271,15 @@ impl Denoiser {
     pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
         if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
-            // many as a stream holds), and a band's result of nine planes.
+            // many as a stream holds, and the next band's where a spread reads them), and a
+            // band's result of nine planes.
             let (_, held) = self.stream_region(width);
+            let next = if Bounds::spread_radius(&self.model.arch).is_some() { rows.len() } else { 0 };
             return Features::bytes(width, total_rows)
                 + self.stream_bytes(width)
-                + width * (6 * held + 9 * rows.len()) * 4;
+                + width * (6 * (held + next) + 9 * rows.len()) * 4;
         }
+        let rows = self.spread_rows(rows, total_rows);
         let tile =
             self.band_tiles(width, rows.clone(), total_rows).iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
         // Three results of three planes each.
@@ -340,14 +356,19 @@ impl Denoiser {
         plan: fn(&Self, usize, std::ops::Range<usize>, usize) -> Vec<Tile>,
         progress: &dyn Fn(Progress) -> bool,
     ) -> Result<Denoised, DenoiseError> {
-        let (w, y0) = (f.width, rows.start);
-        let h = rows.end.min(f.height).saturating_sub(y0);
-        if w == 0 || h == 0 {
+        let w = f.width;
+        let rows = rows.start..rows.end.min(f.height);
+        if w == 0 || rows.is_empty() {
             return Err(DenoiseError::Empty);
         }
+        // The rows whose diffuse light a spread moves into `rows` are denoised too.
+        let (y0, h) = {
+            let e = self.spread_rows(rows.clone(), f.height);
+            (e.start, e.len())
+        };
         // The tile loop runs on the caller's thread, so `progress` does too (a C host's
         // callback may touch its UI); each tile's work runs in the pool.
-        let tiles = plan(self, w, rows.start..rows.start + h, f.height);
+        let tiles = plan(self, w, y0..y0 + h, f.height);
         // Idle activations are kept for reuse within what the budget leaves beside the
         // features and the largest tile, and a quarter of that tile at most.
         let tile = tiles.iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
@@ -379,7 +400,19 @@ impl Denoiser {
         }
         let albedo = std::array::from_fn(|c| f.albedo[c][y0 * w..(y0 + h) * w].to_vec());
         let bounds = self.pool.install(|| Bounds::of(&self.model.arch, f, y0..y0 + h));
-        Ok(recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds))
+        let glow = self.pool.install(|| {
+            let take = bounds.bound_diffuse(&albedo, &mut d_hat)?;
+            Some(take.spread(w, bounds.spread?))
+        });
+        let d = recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds, glow.as_ref());
+        Ok(if h == rows.len() { d } else { d.rows(rows.start - y0..rows.end - y0) })
+    }
+
+    /// Rows `rows` of a region `total_rows` tall, with the rows the model's spread reads
+    /// beyond them ([`Bounds::spread_context`]): the rows a band denoises.
+    pub(crate) fn spread_rows(&self, rows: std::ops::Range<usize>, total_rows: usize) -> std::ops::Range<usize> {
+        let r = Bounds::spread_context(&self.model.arch);
+        rows.start.saturating_sub(r)..(rows.end + r).min(total_rows)
     }
 
     /// Context rows each band of a streamed `width`-wide frame is read with: where the
@@ -389,7 +422,12 @@ impl Denoiser {
     /// ([`crate::model::Architecture::reach`]), or that if it is more.
     pub fn halo(&self, width: usize) -> usize {
         let bounds = crate::features::CONTEXT + Bounds::context(&self.model.arch);
-        if self.streams(width) { bounds } else { self.model.arch.reach().max(bounds) }
+        if self.streams(width) {
+            return bounds;
+        }
+        // A band also denoises the rows its spread reads (`spread_rows`), each with its own
+        // context.
+        self.model.arch.reach().max(bounds) + Bounds::spread_context(&self.model.arch)
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.
@@ -453,24 +491,28 @@ impl Denoiser {
 /// Branches a tile evaluates at once: both, side by side ([`Denoiser::denoise_rows`]).
 const BRANCHES_AT_ONCE: usize = 2;
 
-/// `(albedo + ε) ⊙ d̂` and the specular radiance of `ŝ` ([`Specular::radiance`]), each
-/// within its branch's bound, both divided by the inputs' `exposure`, and their sum, all
-/// finite.
+/// `(albedo + ε) ⊙ d̂` (`d_hat` already within its ceiling, [`Bounds::bound_diffuse`]) with
+/// the `glow` the ceiling's spread brings each pixel, and the specular radiance of `ŝ`
+/// ([`Specular::radiance`]) within its bound, both divided by the inputs' `exposure`, and
+/// their sum, all finite.
+#[allow(clippy::too_many_arguments)]
 fn recompose(
     albedo: &[Vec<f32>; 3],
-    mut d_hat: [Vec<f32>; 3],
+    d_hat: [Vec<f32>; 3],
     s_hat: &[Vec<f32>; 3],
     (w, h): (usize, usize),
     domain: Specular,
     exposure: f32,
     bounds: &Bounds,
+    glow: Option<&[Vec<f32>; 3]>,
 ) -> Denoised {
-    if let Some(b) = &bounds.diffuse {
-        b.apply(&mut d_hat);
-    }
     // Division by exactly 1 changes nothing, so raw models keep their images bit for bit.
     let diffuse: [Vec<f32>; 3] = std::array::from_fn(|c| {
-        d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize(sanitize((a + EPSILON) * d) / exposure)).collect()
+        let radiance = d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d));
+        match glow {
+            Some(g) => radiance.zip(&g[c]).map(|(d, g)| sanitize(sanitize(d + g) / exposure)).collect(),
+            None => radiance.map(|d| sanitize(d / exposure)).collect(),
+        }
     });
     let mut specular: [Vec<f32>; 3] = std::array::from_fn(|c| s_hat[c].iter().map(|&s| domain.radiance(s)).collect());
     if let Some(b) = &bounds.specular {

@@ -4,6 +4,7 @@
 //! evaluated twice, so bands need only the few context rows their features need
 //! ([`crate::features::CONTEXT`]), and the result is the whole frame's bit for bit.
 
+use super::bounds::Take;
 use super::{Bounds, Denoised, Denoiser, recompose};
 use crate::features::{Branch, Features, INPUT_CHANNELS};
 use crate::io::layout::Remainder;
@@ -34,6 +35,9 @@ pub(super) struct FrameStream<'a> {
     out: [[Vec<f32>; 3]; 2],
     /// Bands pushed and not yet emitted.
     pending: VecDeque<Pending>,
+    /// The diffuse ceiling's take of the last rows of the band emitted last (as many as
+    /// the spread reads, [`Bounds::spread_context`]), where the model spreads it.
+    tail: Take,
     exposure: f32,
 }
 
@@ -58,6 +62,7 @@ impl<'a> FrameStream<'a> {
             pushed: 0,
             out: Default::default(),
             pending: VecDeque::new(),
+            tail: Default::default(),
             exposure: 1.0,
         })
     }
@@ -80,7 +85,7 @@ impl<'a> FrameStream<'a> {
             std::array::from_fn(|c| f.albedo[c][(band.start - f_start) * w..(band.end - f_start) * w].to_vec());
         let rows = band.start - f_start..band.end - f_start;
         let bounds = self.denoiser.pool.install(|| Bounds::of(&self.denoiser.model.arch, f, rows));
-        self.pending.push_back(Pending { rows: band, albedo, remainder, bounds });
+        self.pending.push_back(Pending { rows: band, albedo, remainder, bounds, taken: None });
         self.exposure = f.exposure;
         let (arch, height) = (&self.denoiser.model.arch, self.height);
         while self.pushed < end {
@@ -100,21 +105,63 @@ impl<'a> FrameStream<'a> {
         }
     }
 
-    /// The next band whose result is complete, in order.
+    /// The next band whose result is complete, in order. Where the model spreads what its
+    /// diffuse ceiling takes, a band is complete once the next one is too (or it is the
+    /// last): the next band's first rows send it light.
     pub(super) fn ready(&mut self) -> Option<(Range<usize>, Denoised)> {
-        let rows = self.out[0][0].len().min(self.out[1][0].len()) / self.width.max(1);
-        let first = self.pending.front()?.rows.start;
-        if first + rows < self.pending.front()?.rows.end {
+        let w = self.width;
+        let rows = self.out[0][0].len().min(self.out[1][0].len()) / w.max(1);
+        let band = self.pending.front()?.rows.clone();
+        let spread = self.pending.front()?.bounds.spread;
+        let needed = match spread {
+            Some(_) if band.end < self.height => self.pending.get(1)?.rows.end,
+            _ => band.end,
+        };
+        if band.start + rows < needed {
             return None;
         }
-        let Pending { rows: band, albedo, remainder, bounds } = self.pending.pop_front()?;
-        let n = band.len() * self.width;
+        let glow = spread.map(|r| self.glow(r));
+        let Pending { rows: band, albedo, remainder, bounds, .. } = self.pending.pop_front()?;
+        let n = band.len() * w;
         let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
-        let (d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
+        let (mut d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
+        bounds.bound_diffuse(&albedo, &mut d_hat);
         let domain = self.denoiser.model.arch.specular;
-        let mut d = recompose(&albedo, d_hat, &s_hat, (self.width, band.len()), domain, self.exposure, &bounds);
+        let mut d = recompose(&albedo, d_hat, &s_hat, (w, band.len()), domain, self.exposure, &bounds, glow.as_ref());
         d.carry(&remainder);
         Some((band, d))
+    }
+
+    /// What the spread of radius `r` brings the front band (complete, as is the next one
+    /// unless it is the last): the take of the last rows before it its spread reads
+    /// (`tail`, [`Bounds::spread_context`]), of its own rows and of the next band's first
+    /// as many, shared out; the tail becomes its own last rows' take.
+    fn glow(&mut self, r: usize) -> [Vec<f32>; 3] {
+        let context = 2 * r + 1;
+        let w = self.width;
+        let mut at = 0;
+        for p in self.pending.iter_mut().take(2) {
+            let n = p.rows.len() * w;
+            if p.taken.is_none() {
+                let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|c| self.out[0][c][at..at + n].to_vec());
+                p.taken = Some(p.bounds.bound_diffuse(&p.albedo, &mut d_hat).unwrap_or_default());
+            }
+            at += n;
+        }
+        let band = self.pending[0].rows.clone();
+        let own = self.pending[0].taken.as_ref().expect("taken above");
+        let above = std::mem::take(&mut self.tail);
+        debug_assert_eq!(above.height(w), band.start.min(context), "bands are at least the spread's context tall");
+        let mut senders = above.then(own);
+        if let Some(next) = self.pending.get(1).and_then(|p| p.taken.as_ref()) {
+            senders = senders.then(&next.rows(0..next.height(w).min(context), w));
+        }
+        let first = band.start - band.start.min(context);
+        let all = senders.spread(w, r);
+        let keep = (band.start - first) * w..(band.end - first) * w;
+        let rows = own.height(w);
+        self.tail = own.rows(rows - rows.min(context)..rows, w);
+        std::array::from_fn(|c| all[c][keep.clone()].to_vec())
     }
 }
 
@@ -125,6 +172,9 @@ struct Pending {
     remainder: Remainder,
     /// What bounds the branches, where the model does.
     bounds: Bounds,
+    /// The diffuse ceiling's take of its rows, where the model spreads it: known once its
+    /// rows have come out of the stream.
+    taken: Option<Take>,
 }
 
 /// Where a stream's region lies and what of its output is kept: the region's first column

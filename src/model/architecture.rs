@@ -86,7 +86,18 @@ pub struct Architecture {
     /// similar neighbours plus this many standard errors of a pixel's mean there
     /// (`kpcn:diffuse_bound`); `None`: as far as its kernels take it.
     pub diffuse_bound: Option<u8>,
+    /// Where the light the diffuse ceiling takes goes (`kpcn:diffuse_spread`): shared out
+    /// over the (2r + 1)² window around the pixel it came from, in proportion to the noisy
+    /// light there, so that the frame keeps it; `None`: it is lost. Only with a
+    /// [`Architecture::diffuse_bound`].
+    pub diffuse_spread: Option<u8>,
 }
+
+/// The widest [`Architecture::diffuse_spread`]: the rows a band's spread reads beyond it
+/// (2r + 1) fit the thinnest band a frame is streamed in (the pooling grid of a
+/// multi-scale network, 32 rows at five levels), so that it needs the rows of its two
+/// neighbours only.
+pub const MAX_DIFFUSE_SPREAD: u8 = 15;
 
 /// How a model's radiance inputs are scaled (`kpcn:exposure`). Convolutions with biases
 /// and ReLUs are not scale-invariant: a frame rendered 4× brighter is denoised worse
@@ -324,6 +335,7 @@ impl Architecture {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         }
     }
 
@@ -343,6 +355,7 @@ impl Architecture {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         }
     }
 
@@ -364,6 +377,7 @@ impl Architecture {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         }
     }
 
@@ -512,6 +526,12 @@ impl Architecture {
         }
         if self.blend != ScaleBlend::Lerp && self.design != Design::MultiScale {
             return bad(format!("a flat network has no scales to blend, not {self:?}"));
+        }
+        if self.diffuse_spread.is_some() && self.diffuse_bound.is_none() {
+            return bad("a diffuse spread needs a diffuse bound, whose excess it spreads".into());
+        }
+        if let Some(r) = self.diffuse_spread.filter(|&r| r > MAX_DIFFUSE_SPREAD) {
+            return bad(format!("a diffuse spread of {r} px: at most {MAX_DIFFUSE_SPREAD}"));
         }
         if self.specular == Specular::Linear && self.design != Design::MultiScale {
             return bad(format!("linear specular kernels are for multi-scale networks, not {self:?}"));

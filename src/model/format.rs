@@ -35,6 +35,7 @@ impl Architecture {
         .into_iter()
         .chain(self.specular_bound.map(|k| (bound_key(Branch::Specular), k.to_string())))
         .chain(self.diffuse_bound.map(|k| (bound_key(Branch::Diffuse), k.to_string())))
+        .chain(self.diffuse_spread.map(|r| (SPREAD_KEY, r.to_string())))
         .map(|(k, v)| (k.to_string(), v))
         .collect()
     }
@@ -118,6 +119,13 @@ impl Architecture {
             // Files from before the choice leave the branches unbounded.
             specular_bound: bound(Branch::Specular)?,
             diffuse_bound: bound(Branch::Diffuse)?,
+            // Files from before the choice lose what the ceiling takes.
+            diffuse_spread: match m.get(SPREAD_KEY) {
+                None => None,
+                Some(r) => Some(r.parse().ok().filter(|&r| r > 0).ok_or_else(|| {
+                    err(format!("metadata `{SPREAD_KEY}` is `{r}`, not a radius of 1 pixel or more"))
+                })?),
+            },
         };
         a.validate(origin)?;
         Ok(a)
@@ -238,12 +246,30 @@ fn bound_key(b: Branch) -> &'static str {
     }
 }
 
+/// The metadata key of [`Architecture::diffuse_spread`].
+const SPREAD_KEY: &str = "kpcn:diffuse_spread";
+
+/// The model file `bytes` with the light its diffuse ceiling takes spread over the
+/// (2r + 1)² window around where it was taken (`Some(r)`), or lost (`None`)
+/// ([`Architecture::diffuse_spread`]), every weight kept bit for bit.
+pub fn model_file_with_spread(bytes: &[u8], radius: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
+    let rewritten = with_metadata(bytes, origin, SPREAD_KEY, radius.map(|r| r.to_string()))?;
+    Model::from_bytes(&rewritten, origin)?;
+    Ok(rewritten)
+}
+
 /// The model file `bytes` with branch `b` bounded by `errors` standard errors
 /// ([`Architecture::specular_bound`], [`Architecture::diffuse_bound`]; `None` lifts the
-/// bound), every weight kept bit for bit.
+/// bound, and the diffuse bound's spread with it), every weight kept bit for bit.
 pub fn model_file_with_bound(bytes: &[u8], b: Branch, errors: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
     Model::from_bytes(bytes, origin)?;
-    with_metadata(bytes, origin, bound_key(b), errors.map(|k| k.to_string()))
+    let bounded = with_metadata(bytes, origin, bound_key(b), errors.map(|k| k.to_string()))?;
+    // Without its ceiling there is nothing for a spread to spread.
+    if b == Branch::Diffuse && errors.is_none() {
+        with_metadata(&bounded, origin, SPREAD_KEY, None)
+    } else {
+        Ok(bounded)
+    }
 }
 
 /// `bytes` with metadata `key` set to `value` (removed for `None`), tensors unchanged.

@@ -16,10 +16,12 @@ pub mod registry;
 pub mod stream;
 
 pub use architecture::{
-    Architecture, Clamp, Design, Exposure, Kind, Preprocessing, Quality, SIGNIFICANT_ERRORS, ScaleBlend, Specular,
-    Variances,
+    Architecture, Clamp, Design, Exposure, Kind, MAX_DIFFUSE_SPREAD, Preprocessing, Quality, SIGNIFICANT_ERRORS,
+    ScaleBlend, Specular, Variances,
 };
-pub use format::{FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, write_atomically};
+pub use format::{
+    FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, model_file_with_spread, write_atomically,
+};
 
 /// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
 /// buffer pool), checked with the model's weights when it loads.
@@ -170,6 +172,7 @@ mod tests {
             exposure: Default::default(),
             specular_bound: None,
             diffuse_bound: None,
+            diffuse_spread: None,
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -220,6 +223,7 @@ mod tests {
                 exposure: Default::default(),
                 specular_bound: None,
                 diffuse_bound: None,
+                diffuse_spread: None,
             },
             7,
         )
@@ -283,6 +287,28 @@ mod tests {
             let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
             assert!(e.contains("odd.safetensors") && e.contains(&format!("`{key}` is `two`")), "{e}");
         }
+    }
+
+    #[test]
+    fn a_diffuse_spread_is_written_read_lifted_with_its_bound_and_checked() {
+        let m = Model::xavier(Architecture::ladder(Quality::Fast), 5).unwrap();
+        let bytes = m.to_bytes().unwrap();
+        let e = model_file_with_spread(&bytes, Some(7), "mem").unwrap_err().to_string();
+        assert!(e.contains("needs a diffuse bound"), "{e}");
+        let bounded = model_file_with_bound(&bytes, Branch::Diffuse, Some(1), "mem").unwrap();
+        let spread = model_file_with_spread(&bounded, Some(7), "mem").unwrap();
+        let arch = Model::from_bytes(&spread, "mem").unwrap().arch;
+        assert_eq!(arch, Architecture { diffuse_bound: Some(1), diffuse_spread: Some(7), ..m.arch });
+        let lost = model_file_with_spread(&spread, None, "mem").unwrap();
+        assert_eq!(Model::from_bytes(&lost, "mem").unwrap().arch.diffuse_spread, None);
+        let lifted = model_file_with_bound(&spread, Branch::Diffuse, None, "mem").unwrap();
+        assert_eq!(Model::from_bytes(&lifted, "mem").unwrap().arch, m.arch);
+        let mut meta = arch.metadata();
+        meta.insert("kpcn:diffuse_spread".into(), "0".into());
+        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+        let odd = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
+        let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
+        assert!(e.contains("odd.safetensors") && e.contains("`kpcn:diffuse_spread` is `0`"), "{e}");
     }
 
     #[test]

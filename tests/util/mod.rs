@@ -122,6 +122,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         exposure: Default::default(),
         specular_bound: None,
         diffuse_bound: None,
+        diffuse_spread: None,
     };
     Model::xavier(arch, seed).unwrap()
 }

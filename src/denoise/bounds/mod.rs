@@ -3,16 +3,19 @@
 //! standard error, or its alike neighbours' where their window is noisy
 //! ([`NoisySpecular`]), the diffuse branch by its similar neighbours' ([`DiffuseCeiling`]).
 //! Both are computed from the features of a band's rows, so the streamed, tiled and
-//! whole-frame paths bound alike.
+//! whole-frame paths bound alike. What the diffuse ceiling takes is dropped, or spread
+//! over the window around where it was taken ([`Take::spread`]).
 
-use crate::features::Features;
+use crate::features::{EPSILON, Features};
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 use std::ops::Range;
 
 mod specular;
+mod spread;
 
 pub(crate) use specular::NoisySpecular;
+pub(crate) use spread::Take;
 
 /// The bounds of a model over rows of a band ([`Architecture::specular_bound`],
 /// [`Architecture::diffuse_bound`]); each `None` where the model has none.
@@ -20,13 +23,68 @@ pub(crate) use specular::NoisySpecular;
 pub(crate) struct Bounds {
     pub(crate) specular: Option<NoisySpecular>,
     pub(crate) diffuse: Option<DiffuseCeiling>,
+    /// The radius the diffuse ceiling's take is spread over ([`Take::spread`]), where the
+    /// model spreads it.
+    pub(crate) spread: Option<usize>,
+    /// Where it does, the noisy diffuse light of each pixel (exposed radiance, the mean of
+    /// its channels): what the spread shares out by.
+    noisy_light: Vec<f32>,
 }
 
 impl Bounds {
     /// The bounds of `arch` over rows `rows` of the region `f` holds, whose rows beyond
     /// them are context: [`Bounds::context`] at least where the frame goes on.
     pub(crate) fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Bounds {
-        Bounds { specular: NoisySpecular::of(arch, f, rows.clone()), diffuse: DiffuseCeiling::of(arch, f, rows) }
+        let diffuse = DiffuseCeiling::of(arch, f, rows.clone());
+        let spread = diffuse.as_ref().and(Bounds::spread_radius(arch));
+        let noisy_light = match spread {
+            Some(_) => {
+                let (d, a) = (&f.d_tilde, &f.albedo);
+                let light = |i: usize| (0..3).map(|c| (a[c][i] + EPSILON) * d[c][i]).sum::<f32>() / 3.0;
+                (rows.start * f.width..rows.end * f.width).into_par_iter().map(light).collect()
+            }
+            None => Vec::new(),
+        };
+        Bounds { specular: NoisySpecular::of(arch, f, rows.clone()), diffuse, spread, noisy_light }
+    }
+
+    /// The radius `arch` spreads its diffuse ceiling's take over, where it has a ceiling and
+    /// spreads.
+    pub(crate) fn spread_radius(arch: &Architecture) -> Option<usize> {
+        arch.diffuse_bound.and(arch.diffuse_spread).map(usize::from)
+    }
+
+    /// Rows beyond a band's whose take its spread reads ([`Take::spread`]: the windows of
+    /// its windows, and the 3×3 medians of their light); 0 where `arch` does not spread.
+    pub(crate) fn spread_context(arch: &Architecture) -> usize {
+        Bounds::spread_radius(arch).map_or(0, |r| 2 * r + 1)
+    }
+
+    /// Bounds the diffuse branch's output `d_hat` (exposed, these rows or the first of
+    /// them) in place where the model has a ceiling; where it also spreads, what the ceiling
+    /// took from each pixel, in exposed radiance ((albedo + ε) × d̂; `albedo` of those
+    /// rows), beside the noisy light it is shared out by.
+    pub(crate) fn bound_diffuse(&self, albedo: &[Vec<f32>; 3], d_hat: &mut [Vec<f32>; 3]) -> Option<Take> {
+        let ceiling = self.diffuse.as_ref()?;
+        if self.spread.is_none() {
+            ceiling.apply(d_hat);
+            return None;
+        }
+        let before = d_hat.clone();
+        ceiling.apply(d_hat);
+        Some(Take {
+            taken: std::array::from_fn(|c| {
+                before[c]
+                    .iter()
+                    .zip(&d_hat[c])
+                    .zip(&albedo[c])
+                    // Only finite light moves: a NaN or infinite output (hostile input) is
+                    // the ceiling's and recompose's to mend, never spread over its neighbours.
+                    .map(|((b, d), a)| if (b - d).is_finite() { (a + EPSILON) * (b - d).max(0.0) } else { 0.0 })
+                    .collect()
+            }),
+            light: self.noisy_light[..d_hat[0].len()].to_vec(),
+        })
     }
 
     /// Rows of features beyond a band's that its bounds read, beyond those its features
@@ -145,7 +203,8 @@ impl DiffuseCeiling {
         Some(DiffuseCeiling { ceiling, width: w })
     }
 
-    /// Bounds `d_hat` (the branch's output d̂, exposed, these rows) in place.
+    /// Bounds `d_hat` (the branch's output d̂, exposed, these rows or the first of them)
+    /// in place.
     pub(crate) fn apply(&self, d_hat: &mut [Vec<f32>; 3]) {
         let w = self.width;
         for (c, plane) in d_hat.iter_mut().enumerate() {
@@ -662,20 +721,27 @@ mod tests {
 
     #[test]
     fn a_bound_on_hostile_values_never_panics_and_stays_finite() {
-        let mut b = specular::tests::bound(&[1.0, 0.0, 3e38], &[f32::NAN, f32::INFINITY, 3e38], &[1.0, 0.0, 3e38]);
-        b.variance[0] = f32::NAN;
-        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![f32::NAN, 5.0, 1.0]);
-        b.apply(&mut out);
-        let ceiling = DiffuseCeiling { ceiling: [f32::NAN, 1.0, f32::INFINITY].repeat(3), width: 3 };
-        let d = recompose(
-            &std::array::from_fn(|_| vec![0.5; 3]),
-            std::array::from_fn(|_| vec![f32::NAN, 0.1, f32::INFINITY]),
-            &std::array::from_fn(|_| vec![f32::NAN, 90.0, -1.0]),
-            (3, 1),
-            Specular::Log,
-            1.0,
-            &Bounds { specular: Some(b), diffuse: Some(ceiling) },
+        let mut b = specular::tests::bound(
+            &[1.0, 0.0, 3e38, 1.0],
+            &[f32::NAN, f32::INFINITY, 3e38, 1.0],
+            &[1.0, 0.0, 3e38, 1.0],
         );
+        b.variance[0] = f32::NAN;
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![f32::NAN, 5.0, 1.0, 1.0]);
+        b.apply(&mut out);
+        let ceiling = DiffuseCeiling { ceiling: [f32::NAN, 1.0, f32::INFINITY, 0.5].repeat(3), width: 4 };
+        let bounds = Bounds {
+            specular: Some(b),
+            diffuse: Some(ceiling),
+            spread: Some(1),
+            noisy_light: vec![f32::NAN, 1.0, f32::INFINITY, 3e38],
+        };
+        let albedo = std::array::from_fn(|_| vec![0.5; 4]);
+        let mut d_hat = std::array::from_fn(|_| vec![f32::NAN, 0.1, f32::INFINITY, 3e38]);
+        // The spread shares out what the ceiling takes: the finite excess only.
+        let glow = bounds.bound_diffuse(&albedo, &mut d_hat).map(|t| t.spread(4, 1));
+        let s_hat = std::array::from_fn(|_| vec![f32::NAN, 90.0, -1.0, 1.0]);
+        let d = recompose(&albedo, d_hat, &s_hat, (4, 1), Specular::Log, 1.0, &bounds, glow.as_ref());
         assert!(d.color.iter().flatten().all(|v| v.is_finite()), "{:?}", d.color);
     }
 }
