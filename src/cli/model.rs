@@ -73,8 +73,9 @@ pub enum ModelAction {
         errors: u8,
         /// Diffuse only: where the light the ceiling takes goes. Shared out over the
         /// (2 RADIUS + 1)² window around the pixel it came from, in proportion to the noisy
-        /// light there (each pixel's 3×3 median), so that the frame keeps its light and light
-        /// carried off a sun patch goes back to it; 0 (the default) drops it. At most 15.
+        /// light there (each pixel's 3×3 median) and at most that light again per pixel, so
+        /// that light carried off a sun patch goes back to it and a lit frame keeps its light
+        /// (what dark pixels would take is dropped); 0 (the default) drops it all. At most 15.
         #[arg(long, value_name = "RADIUS", default_value_t = 0)]
         spread: u8,
         /// Output file (.safetensors).

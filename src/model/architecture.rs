@@ -88,8 +88,8 @@ pub struct Architecture {
     pub diffuse_bound: Option<u8>,
     /// Where the light the diffuse ceiling takes goes (`kpcn:diffuse_spread`): shared out
     /// over the (2r + 1)² window around the pixel it came from, in proportion to the noisy
-    /// light there, so that the frame keeps it; `None`: it is lost. Only with a
-    /// [`Architecture::diffuse_bound`].
+    /// light there and at most that light again per pixel, so that the frame keeps it where
+    /// it is lit; `None`: it is lost. Only with a [`Architecture::diffuse_bound`].
     pub diffuse_spread: Option<u8>,
 }
 

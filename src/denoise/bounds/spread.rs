@@ -1,10 +1,10 @@
 //! Where the light the diffuse ceiling takes goes ([`crate::model::Architecture::diffuse_spread`]):
 //! shared out over the window around the pixel it was taken from, in proportion to the
-//! noisy light there. Kernels that carry the light of a sun patch into the sparse, noisy
-//! floor beside it make blotches there; the ceiling takes what the floor's own samples
-//! cannot show, and the spread gives it back to the patch, or thinly to the surroundings
-//! where they are alike, so the frame keeps its light (a room lit through a slit keeps its
-//! brightness).
+//! noisy light there, each pixel taking at most its own light again. Kernels that carry the
+//! light of a sun patch into the sparse, noisy floor beside it make blotches there; the
+//! ceiling takes what the floor's own samples cannot show, and the spread gives it back to
+//! the patch, or thinly to the surroundings where they are lit alike, so the frame keeps
+//! its light (a room lit through a slit keeps its brightness).
 
 use rayon::prelude::*;
 use std::ops::Range;
@@ -37,12 +37,15 @@ fn window_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
 /// them: what the ceiling took, radiance) shared out over the (2r + 1)² window around the
 /// pixel it was taken from, cut at the frame's edges, in proportion to the noisy `light`
 /// there (per pixel, the upper median of the 3×3 pixels around it, plus [`DARK_WEIGHT`]):
-/// what each pixel of those rows receives. Light a kernel carried from a sun patch into
-/// the dark floor beside it goes back mostly to the patch, whose every sample saw the sun;
-/// among pixels whose samples mostly saw nothing it spreads evenly; a lone bright pixel (a
-/// firefly) weighs as its neighbours do, so the light does not gather into it. Every bit
-/// taken is shared out (`Σ weight ÷ window's weight` over a window is 1). Exact for rows
-/// whose window's windows' medians (2r + 1 rows each side)
+/// what each pixel of those rows receives, but never more than that light again (what
+/// would be more is dropped). Light a kernel carried from a sun patch into the dark floor
+/// beside it goes back to the patch, whose every sample saw the sun; among lit pixels
+/// alike it spreads evenly; among pixels whose samples mostly saw nothing (the dark around
+/// a night scene's caustic hits) it is dropped; a lone bright pixel (a firefly) weighs as
+/// its neighbours do, so the light does not gather into it, and a firefly far brighter than
+/// the wall it is on does not light the wall. Where no pixel takes its own light again,
+/// every bit taken is shared out (`Σ weight ÷ window's weight` over a window is 1). Exact
+/// for rows whose window's windows' medians (2r + 1 rows each side)
 /// lie within these rows or beyond the frame's edges; each sum in the same order whatever
 /// the rows are, so that bands of a frame receive what the whole frame would, bit for bit.
 pub(crate) fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, rows: usize) -> [Vec<f32>; 3] {
@@ -68,7 +71,8 @@ pub(crate) fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, r
     std::array::from_fn(|c| {
         let share: Vec<f32> = taken[c].par_iter().zip(&window_weight).map(|(t, s)| t / s).collect();
         let received = window_sums(&share, w, r, rows);
-        received.into_par_iter().zip(&weight).map(|(s, k)| s * k).collect()
+        // No pixel takes more than its own light again: light that would is dropped.
+        received.into_par_iter().zip(&weight).map(|(s, &k)| (s * k).min(k)).collect()
     })
 }
 
@@ -123,11 +127,13 @@ mod tests {
     }
 
     #[test]
-    fn the_spread_shares_out_every_bit_of_light_it_takes() {
+    fn the_spread_shares_out_every_bit_of_light_it_takes_among_bright_pixels() {
         let (w, h) = (37, 23);
-        let (taken, light) = (frame(w, h, 3), frame(w, h, 4));
+        let taken = frame(w, h, 3);
+        // Bright enough everywhere that no pixel would take more than its own light again.
+        let light: Vec<f32> = frame(w, h, 4)[0].iter().map(|v| v + 100.0).collect();
         for r in [1, 3, 7] {
-            let out = spread(&taken, &light[0], w, r, h);
+            let out = spread(&taken, &light, w, r, h);
             for c in 0..3 {
                 let (a, b) = (sum(&taken[c]), sum(&out[c]));
                 assert!((a - b).abs() <= 1e-5 * a, "r {r}: {a} taken, {b} shared out");
@@ -136,35 +142,40 @@ mod tests {
     }
 
     #[test]
-    fn light_taken_among_dark_pixels_spreads_evenly_and_beside_a_lit_one_goes_to_it() {
+    fn light_taken_goes_to_the_lit_pixels_around_up_to_their_own_light() {
         let (w, h, r) = (15, 11, 2);
-        let dark: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0f32; w * h]);
-        let mut taken = dark.clone();
+        let near = |v: f32, want: f32| (v - want).abs() <= 1e-4;
+        let mut taken: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0f32; w * h]);
         taken[1][5 * w + 7] = 25.0;
         taken[2][0] = 9.0; // a corner: its window is 3×3
-        let out = spread(&taken, &dark[0], w, r, h);
+        // Evenly over a uniformly lit window.
+        let lit = vec![1f32; w * h];
+        let out = spread(&taken, &lit, w, r, h);
         for y in 0..h {
             for x in 0..w {
                 let inside = x.abs_diff(7) <= r && y.abs_diff(5) <= r;
-                let near = |v: f32, want: f32| (v - want).abs() <= 1e-4;
                 assert!(near(out[1][y * w + x], if inside { 1.0 } else { 0.0 }), "({x}, {y}): {}", out[1][y * w + x]);
                 assert!(near(out[2][y * w + x], if x <= r && y <= r { 1.0 } else { 0.0 }), "({x}, {y})");
             }
         }
         assert!(out[0].iter().all(|&v| v == 0.0));
-        // A lit patch two to the right (sun on the floor beside the dark) takes nearly all;
-        // a lone lit pixel there (a firefly) no more than its neighbours.
-        let mut lit = dark[0].clone();
+        // Among dark pixels (a night scene's caustic hits) nothing: it is dropped.
+        let dark = vec![0f32; w * h];
+        assert!(spread(&taken, &dark, w, r, h).iter().flatten().all(|&v| v <= DARK_WEIGHT));
+        // A lit patch two to the right of dark pixels (sun on the floor) takes its own
+        // light again, the dark around it nothing.
+        let mut patch = dark.clone();
         for (x, y) in [(9, 4), (9, 5), (9, 6), (10, 4), (10, 5), (10, 6)] {
-            lit[y * w + x] = 2.0;
+            patch[y * w + x] = 2.0;
         }
-        let out = spread(&taken, &lit, w, r, h);
-        let patch: f32 = [(9, 4), (9, 5), (9, 6)].iter().map(|&(x, y)| out[1][y * w + x]).sum();
-        assert!(patch > 0.98 * 25.0 && patch < 25.0, "{patch}");
-        let mut lone = dark[0].clone();
+        let out = spread(&taken, &patch, w, r, h);
+        assert!(near(out[1][5 * w + 9], 2.0 + DARK_WEIGHT), "{}", out[1][5 * w + 9]);
+        assert!(out[1].iter().enumerate().all(|(i, &v)| i == 5 * w + 9 || v <= DARK_WEIGHT));
+        // A lone bright pixel (a firefly) on a lit wall takes what its neighbours do.
+        let mut lone = lit.clone();
         lone[5 * w + 9] = 2000.0;
         let out = spread(&taken, &lone, w, r, h);
-        assert!((out[1][5 * w + 9] - 1.0).abs() <= 1e-4, "{}", out[1][5 * w + 9]);
+        assert!(near(out[1][5 * w + 9], 1.0), "{}", out[1][5 * w + 9]);
     }
 
     #[test]
