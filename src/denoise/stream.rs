@@ -125,7 +125,10 @@ impl<'a> FrameStream<'a> {
         let n = band.len() * w;
         let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
         let (mut d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
-        bounds.bound_diffuse(&albedo, &mut d_hat);
+        if spread.is_none() {
+            // A spreading model's rows are within the ceiling already (`glow`).
+            bounds.bound_diffuse(&albedo, &mut d_hat);
+        }
         let domain = self.denoiser.model.arch.specular;
         let mut d = recompose(&albedo, d_hat, &s_hat, (w, band.len()), domain, self.exposure, &bounds, glow.as_ref());
         d.carry(&remainder);
@@ -137,14 +140,16 @@ impl<'a> FrameStream<'a> {
     /// (`tail`, [`Bounds::spread_context`]), of its own rows and of the next band's first
     /// as many, shared out; the tail becomes its own last rows' take.
     fn glow(&mut self, r: usize) -> [Vec<f32>; 3] {
-        let context = 2 * r + 1;
+        let context = Bounds::spread_context(&self.denoiser.model.arch);
         let w = self.width;
         let mut at = 0;
         for p in self.pending.iter_mut().take(2) {
             let n = p.rows.len() * w;
             if p.taken.is_none() {
+                // Bounded once: the rows go back into the output within the ceiling.
                 let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|c| self.out[0][c][at..at + n].to_vec());
                 p.taken = Some(p.bounds.bound_diffuse(&p.albedo, &mut d_hat).unwrap_or_default());
+                (0..3).for_each(|c| self.out[0][c][at..at + n].copy_from_slice(&d_hat[c]));
             }
             at += n;
         }
@@ -173,7 +178,7 @@ struct Pending {
     /// What bounds the branches, where the model does.
     bounds: Bounds,
     /// The diffuse ceiling's take of its rows, where the model spreads it: known once its
-    /// rows have come out of the stream.
+    /// rows have come out of the stream, which then hold them within the ceiling.
     taken: Option<Take>,
 }
 

@@ -48,7 +48,7 @@ fn window_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
 /// for rows whose window's windows' medians (2r + 1 rows each side)
 /// lie within these rows or beyond the frame's edges; each sum in the same order whatever
 /// the rows are, so that bands of a frame receive what the whole frame would, bit for bit.
-pub(crate) fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, rows: usize) -> [Vec<f32>; 3] {
+fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, rows: usize) -> [Vec<f32>; 3] {
     let n = w * rows;
     if taken.iter().all(|p| p.iter().all(|&v| v == 0.0)) {
         return std::array::from_fn(|_| vec![0f32; n]);
