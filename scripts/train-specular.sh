@@ -32,8 +32,9 @@
 #      caustic fireflies into dark neighbours and blurs textures every sample saw), and for
 #      `balanced` the diffuse branch's ceiling, 2 standard errors past its similar
 #      neighbours' noisy mean (`kpcn model bound --branch diffuse`: light no longer bleeds
-#      across edges), WORK/MODEL.safetensors; copy it to models/MODEL.safetensors
-#      (`balanced` ships so).
+#      across edges) and its detail restored over 15x15 windows (`kpcn model detail
+#      --radius 7`: the shading of bumps the kernels smoothed flat comes back),
+#      WORK/MODEL.safetensors; copy it to models/MODEL.safetensors (`balanced` ships so).
 # Score it against MODEL on the held-out scenes with
 #   benches/quality_corpus.sh WORK/MODEL/data MODEL WORK/MODEL.safetensors
 set -euo pipefail
@@ -74,6 +75,8 @@ clamp=fine-pairs-twice
 "$kpcn" model bound "$work/$model.safetensors" --branch specular --errors 2 -o "$work/$model.safetensors"
 # `balanced` also ships with its diffuse branch's ceiling (kept off the other models: not
 # measured on them).
-[ "$model" = balanced ] &&
+if [ "$model" = balanced ]; then
     "$kpcn" model bound "$work/$model.safetensors" --branch diffuse --errors 2 -o "$work/$model.safetensors"
+    "$kpcn" model detail "$work/$model.safetensors" --radius 7 -o "$work/$model.safetensors"
+fi
 echo "$work/$model.safetensors"

@@ -369,4 +369,15 @@ fn model_bound_rewrites_each_branchs_bound_and_info_shows_them() {
         "x.safetensors",
     ]);
     assert!(!out.status.success() && text(&out.stderr).contains("at most 15"), "{}", text(&out.stderr));
+    // The diffuse detail restored, or not; at most 15 px.
+    let detail = path("detail.safetensors");
+    let o = kpcn(&["model", "detail", &both, "--radius", "7", "-o", &detail]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let info = text(&kpcn(&["model", "info", &detail]).stdout);
+    assert!(info.contains("brightened at most 2") && info.contains("restored over 15×15 windows"), "{info}");
+    let o = kpcn(&["model", "detail", &detail, "--radius", "0", "-o", &detail]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(!text(&kpcn(&["model", "info", &detail]).stdout).contains("restored over"));
+    let out = kpcn(&["model", "detail", &both, "--radius", "16", "-o", "x.safetensors"]);
+    assert!(!out.status.success() && text(&out.stderr).contains("at most 15"), "{}", text(&out.stderr));
 }

@@ -29,6 +29,7 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         },
         3,
     )

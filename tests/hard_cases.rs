@@ -51,8 +51,12 @@ const MODELS: [&str; 4] = ["compact", "fast", "balanced", "high"];
 /// misplaced: on a slit frame rendered as this one (`kpcn render --family slit --seed 101
 /// --resolution 96x64`, against a 4096-spp reference) relMSE falls 1.289 → 0.743 and 0.524
 /// → 0.240 at 4 / 16 spp while the mean falls 3.4 → 11.8 % and 4.9 → 15.2 % below the
-/// noisy one's (BENCHMARKS.md). A frame not listed must stay within 1 %, and a listed one
-/// must not move further.
+/// noisy one's (BENCHMARKS.md). Then its detail was restored (2026-12-06, twenty-first
+/// session: `kpcn model detail`): interior −3.64 %, firefly −8.42 %, slit −7.83 / −17.88 %;
+/// on this slit frame the windows' fits follow the room's corners, and relMSE rises 0.743
+/// → 0.775 and 0.240 → 0.264, while on our 320×180 simulator and Cycles frames it falls
+/// (BENCHMARKS.md, "The diffuse detail restored"). A frame not listed must stay within
+/// 1 %, and a listed one must not move further.
 const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("compact", "cornell", 4, 0.017),
     ("compact", "interior", 4, 0.023),
@@ -78,16 +82,16 @@ const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("fast", "slit", 4, 0.301),
     ("fast", "slit", 16, 0.243),
     ("balanced", "cornell", 4, 0.019),
-    ("balanced", "interior", 4, 0.036),
+    ("balanced", "interior", 4, 0.037),
     ("balanced", "interior", 16, 0.018),
     ("balanced", "product", 4, 0.022),
     ("balanced", "product", 16, 0.011),
     ("balanced", "glass", 4, 0.014),
-    ("balanced", "firefly", 4, 0.083),
+    ("balanced", "firefly", 4, 0.085),
     ("balanced", "firefly", 16, 0.104),
     ("balanced", "corridor", 4, 0.011),
-    ("balanced", "slit", 4, 0.073),
-    ("balanced", "slit", 16, 0.172),
+    ("balanced", "slit", 4, 0.079),
+    ("balanced", "slit", 16, 0.179),
     ("high", "cornell", 4, 0.023),
     ("high", "cornell", 16, 0.013),
     ("high", "interior", 4, 0.052),

@@ -79,6 +79,7 @@ fn tiny() -> Model {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         },
         1,
     )

@@ -5,7 +5,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use kpcn::features::Branch;
 use kpcn::model::{
     Architecture, Clamp, Design, Kind, Model, Quality, model_file_with_bound, model_file_with_clamp,
-    model_file_with_spread, registry, write_atomically,
+    model_file_with_detail, model_file_with_spread, registry, write_atomically,
 };
 use std::path::PathBuf;
 
@@ -78,6 +78,22 @@ pub enum ModelAction {
         /// (what dark pixels would take is dropped); 0 (the default) drops it all. At most 15.
         #[arg(long, value_name = "RADIUS", default_value_t = 0)]
         spread: u8,
+        /// Output file (.safetensors).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Rewrite a model with the diffuse detail restored (or not): an inference-time choice,
+    /// so every weight is kept bit for bit. Over the (2 RADIUS + 1)² window around each
+    /// pixel, what the noisy diffuse shows beyond the denoised one (each channel held
+    /// within ± the denoised value) is fitted to the shading normals by least squares, and
+    /// that fit, the shading of bumps and grooves the kernels smoothed flat, is added back;
+    /// the noise, which does not follow the normals, stays out.
+    Detail {
+        /// Model name or file.
+        model: String,
+        /// The windows' radius, at most 15; 0 removes the step.
+        #[arg(long, value_name = "RADIUS")]
+        radius: u8,
         /// Output file (.safetensors).
         #[arg(short, long)]
         output: PathBuf,
@@ -201,6 +217,12 @@ pub fn describe(m: &Model) {
                 None if a.diffuse_bound.is_some() => println!("  diffuse       what the ceiling takes is dropped"),
                 None => {}
             }
+            if let Some(r) = a.diffuse_detail {
+                println!(
+                    "  diffuse       detail that follows the normals restored over {0}×{0} windows",
+                    2 * r as usize + 1
+                );
+            }
         }
     }
     let variances = match a.variances {
@@ -252,6 +274,13 @@ pub fn run(args: &ModelArgs) -> anyhow::Result<()> {
             if *branch == Branch::Diffuse && errors.is_some() {
                 rewritten = model_file_with_spread(&rewritten, spread, model)?;
             }
+            write_atomically(output, &rewritten)
+                .with_context(|| format!("{}: cannot write the model", output.display()))?;
+            println!("{}", output.display());
+        }
+        ModelAction::Detail { model, radius, output } => {
+            let radius = Some(*radius).filter(|&r| r > 0);
+            let rewritten = model_file_with_detail(&model_bytes(model)?, radius, model)?;
             write_atomically(output, &rewritten)
                 .with_context(|| format!("{}: cannot write the model", output.display()))?;
             println!("{}", output.display());

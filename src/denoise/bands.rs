@@ -50,8 +50,8 @@ impl Bands {
         // rows being written, beside the streams.
         let by_budget =
             if denoiser.streams(width) && by_budget < height { by_budget.min(STREAMED_BAND_ROWS) } else { by_budget };
-        // A streamed band's spread reads its neighbours' rows only.
-        let spread = super::Bounds::spread_context(&denoiser.model().arch);
+        // A streamed band's diffuse output reads its neighbours' rows only.
+        let spread = super::Bounds::diffuse_context(&denoiser.model().arch);
         let rows =
             band_rows.unwrap_or(by_budget).max(spread).max(1).next_multiple_of(denoiser.model().arch.alignment());
         let rows = rows.min(height.max(1));
@@ -106,7 +106,7 @@ impl Bands {
             return 1;
         }
         let rows = self.with_context(band).len();
-        denoiser.band_tiles(self.width, denoiser.spread_rows(self.inner(band), rows), rows).len()
+        denoiser.band_tiles(self.width, denoiser.diffuse_rows(self.inner(band), rows), rows).len()
     }
 
     /// Tiles of the frame.
@@ -284,11 +284,13 @@ mod tests {
         }
     }
 
-    /// `balanced` under a ceiling of one standard error, its take spread over 15×15.
+    /// `balanced` under a ceiling of one standard error, its take spread over 15×15, its
+    /// detail not restored.
     fn spreading() -> Model {
         use crate::features::Branch;
-        use crate::model::{model_file_with_bound, model_file_with_spread};
+        use crate::model::{model_file_with_bound, model_file_with_detail, model_file_with_spread};
         let bytes = Model::resolve("balanced").unwrap().to_bytes().unwrap();
+        let bytes = model_file_with_detail(&bytes, None, "mem").unwrap();
         let bytes = model_file_with_bound(&bytes, Branch::Diffuse, Some(1), "mem").unwrap();
         Model::from_bytes(&model_file_with_spread(&bytes, Some(7), "mem").unwrap(), "mem").unwrap()
     }
@@ -321,6 +323,35 @@ mod tests {
             let got = streamed(&d, &fb, true, |r| r.diffuse);
             for (c, (g, w)) in got.iter().zip(&whole.diffuse).enumerate() {
                 assert!(bits(g) == bits(w), "{} MB: channel {c} differs", d.options.max_memory_mb);
+            }
+        }
+    }
+
+    #[test]
+    fn restored_detail_gives_banded_frames_the_whole_frames_output_bit_for_bit() {
+        // Streamed bands (the next band's first rows are read), and bands in tiles with
+        // context rows (a budget too small to stream the network); with a spread beside it.
+        use crate::model::model_file_with_detail;
+        let fb = FrameBuffers::read(std::path::Path::new("examples/data/spheres-crop-00016spp.exr")).unwrap();
+        let inputs = host_rows(&fb, 0..fb.height(), true);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for base in [Model::resolve("balanced").unwrap(), spreading()] {
+            let base = base.to_bytes().unwrap();
+            let (bytes, plain) = (
+                model_file_with_detail(&base, Some(7), "mem").unwrap(),
+                model_file_with_detail(&base, None, "mem").unwrap(),
+            );
+            let plain = Model::from_bytes(&plain, "mem").unwrap();
+            let plain = Denoiser::new(plain, Options::default()).unwrap().denoise(&inputs, &|_| true).unwrap();
+            for options in [Options::default(), Options { max_memory_mb: 1, tile_size: Some(64), ..Options::default() }]
+            {
+                let d = Denoiser::new(Model::from_bytes(&bytes, "mem").unwrap(), options).unwrap();
+                let whole = d.denoise(&inputs, &|_| true).unwrap();
+                assert!(whole.diffuse[1].iter().zip(&plain.diffuse[1]).any(|(a, b)| a != b), "detail restored here");
+                let got = streamed(&d, &fb, true, |r| r.diffuse);
+                for (c, (g, w)) in got.iter().zip(&whole.diffuse).enumerate() {
+                    assert!(bits(g) == bits(w), "{} MB: channel {c} differs", d.options.max_memory_mb);
+                }
             }
         }
     }

@@ -271,15 +271,16 @@ impl Denoiser {
     pub fn working_bytes(&self, width: usize, rows: std::ops::Range<usize>, total_rows: usize) -> usize {
         if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
-            // many as a stream holds, and the next band's where a spread reads them), and a
+            // many as a stream holds, and the next band's where its diffuse output reads
+            // them), and a
             // band's result of nine planes.
             let (_, held) = self.stream_region(width);
-            let next = if Bounds::spread_radius(&self.model.arch).is_some() { rows.len() } else { 0 };
+            let next = if Bounds::reads_neighbours(&self.model.arch) { rows.len() } else { 0 };
             return Features::bytes(width, total_rows)
                 + self.stream_bytes(width)
                 + width * (6 * (held + next) + 9 * rows.len()) * 4;
         }
-        let rows = self.spread_rows(rows, total_rows);
+        let rows = self.diffuse_rows(rows, total_rows);
         let tile =
             self.band_tiles(width, rows.clone(), total_rows).iter().map(|t| self.tile_bytes(t)).max().unwrap_or(0);
         // Three results of three planes each.
@@ -361,9 +362,9 @@ impl Denoiser {
         if w == 0 || rows.is_empty() {
             return Err(DenoiseError::Empty);
         }
-        // The rows whose diffuse light a spread moves into `rows` are denoised too.
+        // The rows whose diffuse output that of `rows` reads are denoised too.
         let (y0, h) = {
-            let e = self.spread_rows(rows.clone(), f.height);
+            let e = self.diffuse_rows(rows.clone(), f.height);
             (e.start, e.len())
         };
         // The tile loop runs on the caller's thread, so `progress` does too (a C host's
@@ -404,14 +405,15 @@ impl Denoiser {
             let take = bounds.bound_diffuse(&albedo, &mut d_hat)?;
             Some(take.spread(w, bounds.spread?))
         });
+        self.pool.install(|| bounds.restore_detail(w, &mut d_hat));
         let d = recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds, glow.as_ref());
         Ok(if h == rows.len() { d } else { d.rows(rows.start - y0..rows.end - y0) })
     }
 
-    /// Rows `rows` of a region `total_rows` tall, with the rows the model's spread reads
-    /// beyond them ([`Bounds::spread_context`]): the rows a band denoises.
-    pub(crate) fn spread_rows(&self, rows: std::ops::Range<usize>, total_rows: usize) -> std::ops::Range<usize> {
-        let r = Bounds::spread_context(&self.model.arch);
+    /// Rows `rows` of a region `total_rows` tall, with the rows beyond them whose diffuse
+    /// output theirs reads ([`Bounds::diffuse_context`]): the rows a band denoises.
+    pub(crate) fn diffuse_rows(&self, rows: std::ops::Range<usize>, total_rows: usize) -> std::ops::Range<usize> {
+        let r = Bounds::diffuse_context(&self.model.arch);
         rows.start.saturating_sub(r)..(rows.end + r).min(total_rows)
     }
 
@@ -425,9 +427,9 @@ impl Denoiser {
         if self.streams(width) {
             return bounds;
         }
-        // A band also denoises the rows its spread reads (`spread_rows`), each with its own
-        // context.
-        self.model.arch.reach().max(bounds) + Bounds::spread_context(&self.model.arch)
+        // A band also denoises the rows its diffuse output reads (`diffuse_rows`), each
+        // with its own context.
+        self.model.arch.reach().max(bounds) + Bounds::diffuse_context(&self.model.arch)
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.

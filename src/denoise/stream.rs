@@ -4,7 +4,7 @@
 //! evaluated twice, so bands need only the few context rows their features need
 //! ([`crate::features::CONTEXT`]), and the result is the whole frame's bit for bit.
 
-use super::bounds::Take;
+use super::bounds::{BandPlanes, Detail, Take, add_detail};
 use super::{Bounds, Denoised, Denoiser, recompose};
 use crate::features::{Branch, Features, INPUT_CHANNELS};
 use crate::io::layout::Remainder;
@@ -36,8 +36,10 @@ pub(super) struct FrameStream<'a> {
     /// Bands pushed and not yet emitted.
     pending: VecDeque<Pending>,
     /// The diffuse ceiling's take of the last rows of the band emitted last (as many as
-    /// the spread reads, [`Bounds::spread_context`]), where the model spreads it.
+    /// its diffuse output reads, [`Bounds::diffuse_context`]), where the model spreads it,
     tail: Take,
+    /// and what its detail is restored from, where the model restores it.
+    detail_tail: Detail,
     exposure: f32,
 }
 
@@ -63,6 +65,7 @@ impl<'a> FrameStream<'a> {
             out: Default::default(),
             pending: VecDeque::new(),
             tail: Default::default(),
+            detail_tail: Default::default(),
             exposure: 1.0,
         })
     }
@@ -85,7 +88,7 @@ impl<'a> FrameStream<'a> {
             std::array::from_fn(|c| f.albedo[c][(band.start - f_start) * w..(band.end - f_start) * w].to_vec());
         let rows = band.start - f_start..band.end - f_start;
         let bounds = self.denoiser.pool.install(|| Bounds::of(&self.denoiser.model.arch, f, rows));
-        self.pending.push_back(Pending { rows: band, albedo, remainder, bounds, taken: None });
+        self.pending.push_back(Pending { rows: band, albedo, remainder, bounds, settled: None });
         self.exposure = f.exposure;
         let (arch, height) = (&self.denoiser.model.arch, self.height);
         while self.pushed < end {
@@ -105,29 +108,41 @@ impl<'a> FrameStream<'a> {
         }
     }
 
-    /// The next band whose result is complete, in order. Where the model spreads what its
-    /// diffuse ceiling takes, a band is complete once the next one is too (or it is the
-    /// last): the next band's first rows send it light.
+    /// The next band whose result is complete, in order. Where the model's diffuse output
+    /// reads its neighbours' (a spread of what its ceiling takes, its detail restored), a
+    /// band is complete once the next one is too (or it is the last): the next band's
+    /// first rows send it light and detail.
     pub(super) fn ready(&mut self) -> Option<(Range<usize>, Denoised)> {
         let w = self.width;
         let rows = self.out[0][0].len().min(self.out[1][0].len()) / w.max(1);
         let band = self.pending.front()?.rows.clone();
-        let spread = self.pending.front()?.bounds.spread;
-        let needed = match spread {
-            Some(_) if band.end < self.height => self.pending.get(1)?.rows.end,
-            _ => band.end,
-        };
+        let neighbours = Bounds::reads_neighbours(&self.denoiser.model.arch);
+        let needed = if neighbours && band.end < self.height { self.pending.get(1)?.rows.end } else { band.end };
         if band.start + rows < needed {
             return None;
         }
-        let glow = spread.map(|r| self.glow(r));
+        if neighbours {
+            self.settle();
+        }
+        let (spread, detail) = (self.pending[0].bounds.spread, self.pending[0].bounds.detail);
+        let glow = spread.map(|r| {
+            let (all, keep) = self.around(|s| &s.taken, |t| &mut t.tail);
+            all.spread(w, r).map(|p| p[keep.clone()].to_vec())
+        });
+        let restored = detail.map(|r| {
+            let (all, keep) = self.around(|s| &s.detail, |t| &mut t.detail_tail);
+            all.restore(w, r).map(|p| p[keep.clone()].to_vec())
+        });
         let Pending { rows: band, albedo, remainder, bounds, .. } = self.pending.pop_front()?;
         let n = band.len() * w;
         let take = |o: &mut [Vec<f32>; 3]| -> [Vec<f32>; 3] { std::array::from_fn(|c| o[c].drain(..n).collect()) };
         let (mut d_hat, s_hat) = (take(&mut self.out[0]), take(&mut self.out[1]));
-        if spread.is_none() {
-            // A spreading model's rows are within the ceiling already (`glow`).
+        if !neighbours {
+            // Otherwise the rows are within the ceiling already (`settle`).
             bounds.bound_diffuse(&albedo, &mut d_hat);
+        }
+        if let Some(detail) = restored {
+            add_detail(&mut d_hat, &detail);
         }
         let domain = self.denoiser.model.arch.specular;
         let mut d = recompose(&albedo, d_hat, &s_hat, (w, band.len()), domain, self.exposure, &bounds, glow.as_ref());
@@ -135,39 +150,59 @@ impl<'a> FrameStream<'a> {
         Some((band, d))
     }
 
-    /// What the spread of radius `r` brings the front band (complete, as is the next one
-    /// unless it is the last): the take of the last rows before it its spread reads
-    /// (`tail`, [`Bounds::spread_context`]), of its own rows and of the next band's first
-    /// as many, shared out; the tail becomes its own last rows' take.
-    fn glow(&mut self, r: usize) -> [Vec<f32>; 3] {
-        let context = Bounds::spread_context(&self.denoiser.model.arch);
+    /// Bounds the rows of the front band and the next (complete, unless the front is the
+    /// last) within the ceiling in the output, once, and keeps what their neighbours read:
+    /// what the ceiling took ([`Take`]) and what the detail is restored from ([`Detail`]).
+    fn settle(&mut self) {
         let w = self.width;
         let mut at = 0;
         for p in self.pending.iter_mut().take(2) {
             let n = p.rows.len() * w;
-            if p.taken.is_none() {
-                // Bounded once: the rows go back into the output within the ceiling.
+            if at + n > self.out[0][0].len() {
+                break;
+            }
+            if p.settled.is_none() {
                 let mut d_hat: [Vec<f32>; 3] = std::array::from_fn(|c| self.out[0][c][at..at + n].to_vec());
-                p.taken = Some(p.bounds.bound_diffuse(&p.albedo, &mut d_hat).unwrap_or_default());
+                let taken = p.bounds.bound_diffuse(&p.albedo, &mut d_hat).unwrap_or_default();
+                let detail = p.bounds.detail_inputs(&d_hat).unwrap_or_default();
                 (0..3).for_each(|c| self.out[0][c][at..at + n].copy_from_slice(&d_hat[c]));
+                p.settled = Some(Settled { taken, detail });
             }
             at += n;
         }
-        let band = self.pending[0].rows.clone();
-        let own = self.pending[0].taken.as_ref().expect("taken above");
-        let above = std::mem::take(&mut self.tail);
-        debug_assert_eq!(above.height(w), band.start.min(context), "bands are at least the spread's context tall");
-        let mut senders = above.then(own);
-        if let Some(next) = self.pending.get(1).and_then(|p| p.taken.as_ref()) {
-            senders = senders.then(&next.rows(0..next.height(w).min(context), w));
-        }
-        let first = band.start - band.start.min(context);
-        let all = senders.spread(w, r);
-        let keep = (band.start - first) * w..(band.end - first) * w;
-        let rows = own.height(w);
-        self.tail = own.rows(rows - rows.min(context)..rows, w);
-        std::array::from_fn(|c| all[c][keep.clone()].to_vec())
     }
+
+    /// The front band's settled planes (`of`) with the rows before it its diffuse output
+    /// reads (`tail`, [`Bounds::diffuse_context`]) and the next band's first as many, and
+    /// where the front band's pixels lie in them; the tail becomes its own last rows.
+    fn around<const N: usize>(
+        &mut self,
+        of: impl Fn(&Settled) -> &BandPlanes<N>,
+        tail: impl Fn(&mut Self) -> &mut BandPlanes<N>,
+    ) -> (BandPlanes<N>, Range<usize>) {
+        let context = Bounds::diffuse_context(&self.denoiser.model.arch);
+        let w = self.width;
+        let band = self.pending[0].rows.clone();
+        let above = std::mem::take(tail(self));
+        let own = of(self.pending[0].settled.as_ref().expect("settled"));
+        debug_assert_eq!(above.height(w), band.start.min(context), "bands are at least the context tall");
+        let first = above.height(w);
+        let rows = own.height(w);
+        let new_tail = own.rows(rows - rows.min(context)..rows, w);
+        let mut all = above.then(own);
+        if let Some(next) = self.pending.get(1).and_then(|p| p.settled.as_ref()).map(&of) {
+            all = all.then(&next.rows(0..next.height(w).min(context), w));
+        }
+        *tail(self) = new_tail;
+        (all, first * w..(first + rows) * w)
+    }
+}
+
+/// What a band's neighbours read of its diffuse output once it is within the ceiling
+/// ([`FrameStream::settle`]); each empty where the model does not read it.
+struct Settled {
+    taken: Take,
+    detail: Detail,
 }
 
 /// A band pushed into a [`FrameStream`] whose result has not come out.
@@ -177,9 +212,9 @@ struct Pending {
     remainder: Remainder,
     /// What bounds the branches, where the model does.
     bounds: Bounds,
-    /// The diffuse ceiling's take of its rows, where the model spreads it: known once its
-    /// rows have come out of the stream, which then hold them within the ceiling.
-    taken: Option<Take>,
+    /// Where the model's diffuse output reads its neighbours', what they read: known once
+    /// its rows have come out of the stream, which then hold them within the ceiling.
+    settled: Option<Settled>,
 }
 
 /// Where a stream's region lies and what of its output is kept: the region's first column

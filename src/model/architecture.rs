@@ -91,7 +91,16 @@ pub struct Architecture {
     /// light there and at most that light again per pixel, so that the frame keeps it where
     /// it is lit; `None`: it is lost. Only with a [`Architecture::diffuse_bound`].
     pub diffuse_spread: Option<u8>,
+    /// The detail the diffuse branch smoothed away, restored (`kpcn:diffuse_detail`): over
+    /// each (2r + 1)² window, the part of the noisy residual (noisy d̃ − d̂, each channel
+    /// held within ±d̂) that follows the shading normal, fitted by least squares, is added
+    /// back; noise, which does not follow the normal, stays out. `None`: d̂ as it is.
+    pub diffuse_detail: Option<u8>,
 }
+
+/// The widest [`Architecture::diffuse_detail`]: the rows a band's detail reads beyond it
+/// (2r) fit the thinnest band a frame is streamed in, as [`MAX_DIFFUSE_SPREAD`]'s do.
+pub const MAX_DIFFUSE_DETAIL: u8 = 15;
 
 /// The widest [`Architecture::diffuse_spread`]: the rows a band's spread reads beyond it
 /// (2r + 1) fit the thinnest band a frame is streamed in (the pooling grid of a
@@ -336,6 +345,7 @@ impl Architecture {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         }
     }
 
@@ -356,6 +366,7 @@ impl Architecture {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         }
     }
 
@@ -378,6 +389,7 @@ impl Architecture {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         }
     }
 
@@ -532,6 +544,9 @@ impl Architecture {
         }
         if let Some(r) = self.diffuse_spread.filter(|&r| r > MAX_DIFFUSE_SPREAD) {
             return bad(format!("a diffuse spread of {r} px: at most {MAX_DIFFUSE_SPREAD}"));
+        }
+        if let Some(r) = self.diffuse_detail.filter(|&r| r > MAX_DIFFUSE_DETAIL) {
+            return bad(format!("a diffuse detail window of radius {r} px: at most {MAX_DIFFUSE_DETAIL}"));
         }
         if self.specular == Specular::Linear && self.design != Design::MultiScale {
             return bad(format!("linear specular kernels are for multi-scale networks, not {self:?}"));

@@ -36,6 +36,7 @@ impl Architecture {
         .chain(self.specular_bound.map(|k| (bound_key(Branch::Specular), k.to_string())))
         .chain(self.diffuse_bound.map(|k| (bound_key(Branch::Diffuse), k.to_string())))
         .chain(self.diffuse_spread.map(|r| (SPREAD_KEY, r.to_string())))
+        .chain(self.diffuse_detail.map(|r| (DETAIL_KEY, r.to_string())))
         .map(|(k, v)| (k.to_string(), v))
         .collect()
     }
@@ -51,6 +52,15 @@ impl Architecture {
                     bound_key(b)
                 ))
             }),
+        };
+        let radius = |key: &str| match m.get(key) {
+            None => Ok(None),
+            Some(r) => r
+                .parse()
+                .ok()
+                .filter(|&r| r > 0)
+                .map(Some)
+                .ok_or_else(|| err(format!("metadata `{key}` is `{r}`, not a radius of 1 pixel or more"))),
         };
         let version = get("kpcn:format")?;
         if version != FORMAT_VERSION {
@@ -120,12 +130,9 @@ impl Architecture {
             specular_bound: bound(Branch::Specular)?,
             diffuse_bound: bound(Branch::Diffuse)?,
             // Files from before the choice lose what the ceiling takes.
-            diffuse_spread: match m.get(SPREAD_KEY) {
-                None => None,
-                Some(r) => Some(r.parse().ok().filter(|&r| r > 0).ok_or_else(|| {
-                    err(format!("metadata `{SPREAD_KEY}` is `{r}`, not a radius of 1 pixel or more"))
-                })?),
-            },
+            diffuse_spread: radius(SPREAD_KEY)?,
+            // Files from before the choice keep d̂ as it is.
+            diffuse_detail: radius(DETAIL_KEY)?,
         };
         a.validate(origin)?;
         Ok(a)
@@ -254,6 +261,18 @@ const SPREAD_KEY: &str = "kpcn:diffuse_spread";
 /// ([`Architecture::diffuse_spread`]), every weight kept bit for bit.
 pub fn model_file_with_spread(bytes: &[u8], radius: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
     let rewritten = with_metadata(bytes, origin, SPREAD_KEY, radius.map(|r| r.to_string()))?;
+    Model::from_bytes(&rewritten, origin)?;
+    Ok(rewritten)
+}
+
+/// The metadata key of [`Architecture::diffuse_detail`].
+const DETAIL_KEY: &str = "kpcn:diffuse_detail";
+
+/// The model file `bytes` with the diffuse detail restored over (2r + 1)² windows
+/// (`Some(r)`) or not (`None`) ([`Architecture::diffuse_detail`]), every weight kept bit
+/// for bit.
+pub fn model_file_with_detail(bytes: &[u8], radius: Option<u8>, origin: &str) -> Result<Vec<u8>, ModelError> {
+    let rewritten = with_metadata(bytes, origin, DETAIL_KEY, radius.map(|r| r.to_string()))?;
     Model::from_bytes(&rewritten, origin)?;
     Ok(rewritten)
 }

@@ -16,11 +16,12 @@ pub mod registry;
 pub mod stream;
 
 pub use architecture::{
-    Architecture, Clamp, Design, Exposure, Kind, MAX_DIFFUSE_SPREAD, Preprocessing, Quality, SIGNIFICANT_ERRORS,
-    ScaleBlend, Specular, Variances,
+    Architecture, Clamp, Design, Exposure, Kind, MAX_DIFFUSE_DETAIL, MAX_DIFFUSE_SPREAD, Preprocessing, Quality,
+    SIGNIFICANT_ERRORS, ScaleBlend, Specular, Variances,
 };
 pub use format::{
-    FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, model_file_with_spread, write_atomically,
+    FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, model_file_with_detail, model_file_with_spread,
+    write_atomically,
 };
 
 /// Room for the small buffers of a denoiser's first frame (thread arenas, the kernel's
@@ -173,6 +174,7 @@ mod tests {
             specular_bound: None,
             diffuse_bound: None,
             diffuse_spread: None,
+            diffuse_detail: None,
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -224,6 +226,7 @@ mod tests {
                 specular_bound: None,
                 diffuse_bound: None,
                 diffuse_spread: None,
+                diffuse_detail: None,
             },
             7,
         )
@@ -312,6 +315,25 @@ mod tests {
     }
 
     #[test]
+    fn a_diffuse_detail_is_written_read_removed_and_checked() {
+        let m = Model::xavier(Architecture::ladder(Quality::Fast), 5).unwrap();
+        let bytes = m.to_bytes().unwrap();
+        let detail = model_file_with_detail(&bytes, Some(7), "mem").unwrap();
+        let arch = Model::from_bytes(&detail, "mem").unwrap().arch;
+        assert_eq!(arch, Architecture { diffuse_detail: Some(7), ..m.arch });
+        let removed = model_file_with_detail(&detail, None, "mem").unwrap();
+        assert_eq!(Model::from_bytes(&removed, "mem").unwrap().arch, m.arch);
+        let e = model_file_with_detail(&bytes, Some(MAX_DIFFUSE_DETAIL + 1), "mem").unwrap_err().to_string();
+        assert!(e.contains("at most 15"), "{e}");
+        let mut meta = arch.metadata();
+        meta.insert("kpcn:diffuse_detail".into(), "wide".into());
+        let t = Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap();
+        let odd = safetensors::serialize([("x", &t)], Some(meta)).unwrap();
+        let e = Model::from_bytes(&odd, "odd.safetensors").unwrap_err().to_string();
+        assert!(e.contains("odd.safetensors") && e.contains("`kpcn:diffuse_detail` is `wide`"), "{e}");
+    }
+
+    #[test]
     fn every_rung_of_the_ladder_is_shipped_with_its_architecture() {
         for q in Quality::ALL {
             let m = Model::resolve(q.name()).unwrap();
@@ -321,10 +343,19 @@ mod tests {
             // (`kpcn model clamp`; models/README.md).
             let clamp = if q == Quality::Balanced { Clamp::Significant } else { Clamp::FinePairsTwice };
             // `balanced`'s specular branch was retrained, and ships bounded, its diffuse branch
-            // under a ceiling (`kpcn model bound`).
-            let (specular_bound, diffuse_bound) =
-                ((q == Quality::Balanced).then_some(2), (q == Quality::Balanced).then_some(2));
-            let want = Architecture { exposure, clamp, specular_bound, diffuse_bound, ..Architecture::ladder(q) };
+            // under a ceiling (`kpcn model bound`) and with its detail restored (`kpcn model
+            // detail`).
+            let only_balanced = |v: u8| (q == Quality::Balanced).then_some(v);
+            let (specular_bound, diffuse_bound, diffuse_detail) =
+                (only_balanced(2), only_balanced(2), only_balanced(7));
+            let want = Architecture {
+                exposure,
+                clamp,
+                specular_bound,
+                diffuse_bound,
+                diffuse_detail,
+                ..Architecture::ladder(q)
+            };
             assert_eq!(m.arch, want, "{}", q.name());
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }

@@ -123,6 +123,7 @@ pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
         specular_bound: None,
         diffuse_bound: None,
         diffuse_spread: None,
+        diffuse_detail: None,
     };
     Model::xavier(arch, seed).unwrap()
 }

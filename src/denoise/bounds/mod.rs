@@ -11,14 +11,18 @@ use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 use std::ops::Range;
 
+mod detail;
 mod specular;
 mod spread;
 
+pub(crate) use detail::Detail;
 pub(crate) use specular::NoisySpecular;
 pub(crate) use spread::Take;
 
 /// The bounds of a model over rows of a band ([`Architecture::specular_bound`],
-/// [`Architecture::diffuse_bound`]); each `None` where the model has none.
+/// [`Architecture::diffuse_bound`]), and what it does with the diffuse branch's output
+/// beyond them ([`Architecture::diffuse_spread`], [`Architecture::diffuse_detail`]);
+/// each `None` where the model has none.
 #[derive(Default)]
 pub(crate) struct Bounds {
     pub(crate) specular: Option<NoisySpecular>,
@@ -29,6 +33,12 @@ pub(crate) struct Bounds {
     /// Where it does, the noisy diffuse light of each pixel (exposed radiance, the mean of
     /// its channels): what the spread shares out by.
     noisy_light: Vec<f32>,
+    /// The radius of the windows the diffuse detail is restored over ([`Detail::restore`]),
+    /// where the model restores it.
+    pub(crate) detail: Option<usize>,
+    /// Where it does, the noisy d̃, the shading normal and the variance of d̃ of each pixel
+    /// (planes 0–2, 3–5, 6).
+    detail_guides: Vec<Vec<f32>>,
 }
 
 impl Bounds {
@@ -37,15 +47,23 @@ impl Bounds {
     pub(crate) fn of(arch: &Architecture, f: &Features, rows: Range<usize>) -> Bounds {
         let diffuse = DiffuseCeiling::of(arch, f, rows.clone());
         let spread = diffuse.as_ref().and(Bounds::spread_radius(arch));
+        let pixels = rows.start * f.width..rows.end * f.width;
         let noisy_light = match spread {
             Some(_) => {
                 let (d, a) = (&f.d_tilde, &f.albedo);
                 let light = |i: usize| (0..3).map(|c| (a[c][i] + EPSILON) * d[c][i]).sum::<f32>() / 3.0;
-                (rows.start * f.width..rows.end * f.width).into_par_iter().map(light).collect()
+                pixels.clone().into_par_iter().map(light).collect()
             }
             None => Vec::new(),
         };
-        Bounds { specular: NoisySpecular::of(arch, f, rows.clone()), diffuse, spread, noisy_light }
+        let detail = arch.diffuse_detail.map(usize::from);
+        let detail_guides = match detail {
+            Some(_) => {
+                f.d_tilde.iter().chain(&f.normal).chain([&f.d_variance]).map(|p| p[pixels.clone()].to_vec()).collect()
+            }
+            None => Vec::new(),
+        };
+        Bounds { specular: NoisySpecular::of(arch, f, rows), diffuse, spread, noisy_light, detail, detail_guides }
     }
 
     /// The radius `arch` spreads its diffuse ceiling's take over, where it has a ceiling and
@@ -54,10 +72,18 @@ impl Bounds {
         arch.diffuse_bound.and(arch.diffuse_spread).map(usize::from)
     }
 
-    /// Rows beyond a band's whose take its spread reads ([`Take::spread`]: the windows of
-    /// its windows, and the 3×3 medians of their light); 0 where `arch` does not spread.
-    pub(crate) fn spread_context(arch: &Architecture) -> usize {
-        Bounds::spread_radius(arch).map_or(0, |r| 2 * r + 1)
+    /// Rows beyond a band's whose diffuse output its own reads: the spread's
+    /// ([`Take::spread`]: the windows of its windows, and the 3×3 medians of their light,
+    /// 2r + 1) and the detail's ([`Detail::restore`]: the windows of its windows, 2r); 0
+    /// where `arch` does neither.
+    pub(crate) fn diffuse_context(arch: &Architecture) -> usize {
+        let spread = Bounds::spread_radius(arch).map_or(0, |r| 2 * r + 1);
+        spread.max(arch.diffuse_detail.map_or(0, |r| 2 * usize::from(r)))
+    }
+
+    /// Whether a band's diffuse output depends on its neighbours' ([`Bounds::diffuse_context`]).
+    pub(crate) fn reads_neighbours(arch: &Architecture) -> bool {
+        Bounds::diffuse_context(arch) > 0
     }
 
     /// Bounds the diffuse branch's output `d_hat` (exposed, these rows or the first of
@@ -72,19 +98,39 @@ impl Bounds {
         }
         let before = d_hat.clone();
         ceiling.apply(d_hat);
-        Some(Take {
-            taken: std::array::from_fn(|c| {
-                before[c]
-                    .iter()
-                    .zip(&d_hat[c])
-                    .zip(&albedo[c])
-                    // Only finite light moves: a NaN or infinite output (hostile input) is
-                    // the ceiling's and recompose's to mend, never spread over its neighbours.
-                    .map(|((b, d), a)| if (b - d).is_finite() { (a + EPSILON) * (b - d).max(0.0) } else { 0.0 })
-                    .collect()
-            }),
-            light: self.noisy_light[..d_hat[0].len()].to_vec(),
-        })
+        let n = d_hat[0].len();
+        Some(BandPlanes(std::array::from_fn(|c| match c {
+            3 => self.noisy_light[..n].to_vec(),
+            c => before[c]
+                .iter()
+                .zip(&d_hat[c])
+                .zip(&albedo[c])
+                // Only finite light moves: a NaN or infinite output (hostile input) is the
+                // ceiling's and recompose's to mend, never spread over its neighbours.
+                .map(|((b, d), a)| if (b - d).is_finite() { (a + EPSILON) * (b - d).max(0.0) } else { 0.0 })
+                .collect(),
+        })))
+    }
+
+    /// Where the model restores the diffuse detail, what [`Detail::restore`] reads of
+    /// these rows (or the first of them): `d_hat` (within its ceiling), the noisy d̃, the
+    /// normals and the variance of d̃.
+    pub(crate) fn detail_inputs(&self, d_hat: &[Vec<f32>; 3]) -> Option<Detail> {
+        self.detail?;
+        let n = d_hat[0].len();
+        Some(BandPlanes(std::array::from_fn(|c| match c {
+            0..3 => d_hat[c].clone(),
+            c => self.detail_guides[c - 3][..n].to_vec(),
+        })))
+    }
+
+    /// Restores the diffuse detail of `d_hat` (exposed, these rows, within its ceiling) in
+    /// place where the model does, from these rows alone: exact for rows
+    /// [`Bounds::diffuse_context`] rows from any cut that is not the frame's edge.
+    pub(crate) fn restore_detail(&self, w: usize, d_hat: &mut [Vec<f32>; 3]) {
+        if let Some((inputs, r)) = self.detail_inputs(d_hat).zip(self.detail) {
+            add_detail(d_hat, &inputs.restore(w, r));
+        }
     }
 
     /// Rows of features beyond a band's that its bounds read, beyond those its features
@@ -93,6 +139,88 @@ impl Bounds {
         let diffuse = arch.diffuse_bound.map_or(0, |_| SPARSE_RADIUS);
         diffuse.max(arch.specular_bound.map_or(0, |_| CEILING_RADIUS))
     }
+}
+
+/// `d_hat` with `detail` added, each pixel of it.
+pub(crate) fn add_detail(d_hat: &mut [Vec<f32>; 3], detail: &[Vec<f32>; 3]) {
+    for (d, e) in d_hat.iter_mut().zip(detail) {
+        d.par_iter_mut().zip(e).for_each(|(d, e)| *d += e);
+    }
+}
+
+/// Planes of rows of a band, each `[pixel]` of rows `w` wide: cut and joined by row, so
+/// that a streamed band can be given its neighbours' rows.
+#[derive(Clone)]
+pub(crate) struct BandPlanes<const N: usize>(pub(crate) [Vec<f32>; N]);
+
+impl<const N: usize> Default for BandPlanes<N> {
+    fn default() -> Self {
+        BandPlanes(std::array::from_fn(|_| Vec::new()))
+    }
+}
+
+impl<const N: usize> From<[Vec<f32>; N]> for BandPlanes<N> {
+    fn from(planes: [Vec<f32>; N]) -> Self {
+        BandPlanes(planes)
+    }
+}
+
+impl<const N: usize> BandPlanes<N> {
+    /// Rows `rows` of it (`w` wide).
+    pub(crate) fn rows(&self, rows: Range<usize>, w: usize) -> Self {
+        let cut = rows.start * w..rows.end * w;
+        BandPlanes(std::array::from_fn(|c| self.0[c][cut.clone()].to_vec()))
+    }
+
+    /// `self` with `below`'s rows after its own.
+    pub(crate) fn then(mut self, below: &Self) -> Self {
+        self.0.iter_mut().zip(&below.0).for_each(|(p, b)| p.extend_from_slice(b));
+        self
+    }
+
+    /// Its rows, `w` wide.
+    pub(crate) fn height(&self, w: usize) -> usize {
+        self.0[0].len() / w.max(1)
+    }
+}
+
+/// The largest magnitude [`box_sums`] sums a row of with a running sum.
+const RUNNING_SUM_LIMIT: f32 = 1e4;
+
+/// The sums of `plane` (rows `rows` of a `w`-wide frame) over the (2r + 1)² window around
+/// each pixel of those rows, cut at the frame's edges and at `rows`: along each row, then
+/// down each column, each in the same order whatever `rows` is.
+pub(super) fn box_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
+    let mut across = vec![0f32; w * rows];
+    // A running sum along each row, in f64, where its values are moderate: what leaves the
+    // window is then taken off to far below f32's rounding, and a huge or non-finite value
+    // (hostile input) cannot spoil the rest of the row, which is summed window by window.
+    // Rows are whole, so either way runs alike whatever `rows` is.
+    across.par_chunks_mut(w).zip(plane.par_chunks(w)).for_each(|(out, row)| {
+        if !row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT) {
+            for (x, o) in out.iter_mut().enumerate() {
+                *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
+            }
+            return;
+        }
+        let mut sum: f64 = row[..r.min(w)].iter().map(|&v| f64::from(v)).sum();
+        for (x, o) in out.iter_mut().enumerate() {
+            if x + r < w {
+                sum += f64::from(row[x + r]);
+            }
+            if x > r {
+                sum -= f64::from(row[x - r - 1]);
+            }
+            *o = sum as f32;
+        }
+    });
+    let mut out = vec![0f32; w * rows];
+    out.par_chunks_mut(w).enumerate().for_each(|(k, o)| {
+        for j in k.saturating_sub(r)..(k + r + 1).min(rows) {
+            o.iter_mut().zip(&across[j * w..(j + 1) * w]).for_each(|(o, a)| *o += a);
+        }
+    });
+    out
 }
 
 /// Half the side of the window a pixel's similar neighbours are sought in (7×7).
@@ -735,11 +863,18 @@ mod tests {
             diffuse: Some(ceiling),
             spread: Some(1),
             noisy_light: vec![f32::NAN, 1.0, f32::INFINITY, 3e38],
+            detail: Some(1),
+            detail_guides: [vec![f32::NAN, 0.2, -3e38, f32::INFINITY], vec![0.0, 1.0, f32::NAN, 0.5]]
+                .into_iter()
+                .cycle()
+                .take(7)
+                .collect(),
         };
         let albedo = std::array::from_fn(|_| vec![0.5; 4]);
         let mut d_hat = std::array::from_fn(|_| vec![f32::NAN, 0.1, f32::INFINITY, 3e38]);
         // The spread shares out what the ceiling takes: the finite excess only.
         let glow = bounds.bound_diffuse(&albedo, &mut d_hat).map(|t| t.spread(4, 1));
+        bounds.restore_detail(4, &mut d_hat);
         let s_hat = std::array::from_fn(|_| vec![f32::NAN, 90.0, -1.0, 1.0]);
         let d = recompose(&albedo, d_hat, &s_hat, (4, 1), Specular::Log, 1.0, &bounds, glow.as_ref());
         assert!(d.color.iter().flatten().all(|v| v.is_finite()), "{:?}", d.color);

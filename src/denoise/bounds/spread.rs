@@ -6,32 +6,13 @@
 //! the patch, or thinly to the surroundings where they are lit alike, so the frame keeps
 //! its light (a room lit through a slit keeps its brightness).
 
+use super::{BandPlanes, box_sums};
 use rayon::prelude::*;
-use std::ops::Range;
 
 /// What each pixel weighs beside its light when the spread shares out what was taken:
 /// a window of dark pixels takes it evenly, rather than dividing by nothing (exposed
 /// radiance: an auto-exposed frame's key is 0.18).
 const DARK_WEIGHT: f32 = 1e-3;
-
-/// The sums of `plane` (rows `rows` of a `w`-wide frame) over the (2r + 1)² window around
-/// each pixel of those rows, cut at the frame's edges and at `rows`: along each row, then
-/// down each column, each in the same order whatever `rows` is.
-fn window_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
-    let mut across = vec![0f32; w * rows];
-    across.par_chunks_mut(w).zip(plane.par_chunks(w)).for_each(|(out, row)| {
-        for (x, o) in out.iter_mut().enumerate() {
-            *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
-        }
-    });
-    let mut out = vec![0f32; w * rows];
-    out.par_chunks_mut(w).enumerate().for_each(|(k, o)| {
-        for j in k.saturating_sub(r)..(k + r + 1).min(rows) {
-            o.iter_mut().zip(&across[j * w..(j + 1) * w]).for_each(|(o, a)| *o += a);
-        }
-    });
-    out
-}
 
 /// The light `taken` from each pixel of `rows` rows of a `w`-wide frame (`taken[c]` holds
 /// them: what the ceiling took, radiance) shared out over the (2r + 1)² window around the
@@ -48,7 +29,7 @@ fn window_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
 /// for rows whose window's windows' medians (2r + 1 rows each side)
 /// lie within these rows or beyond the frame's edges; each sum in the same order whatever
 /// the rows are, so that bands of a frame receive what the whole frame would, bit for bit.
-fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, rows: usize) -> [Vec<f32>; 3] {
+fn spread(taken: &[Vec<f32>], light: &[f32], w: usize, r: usize, rows: usize) -> [Vec<f32>; 3] {
     let n = w * rows;
     if taken.iter().all(|p| p.iter().all(|&v| v == 0.0)) {
         return std::array::from_fn(|_| vec![0f32; n]);
@@ -67,47 +48,24 @@ fn spread(taken: &[Vec<f32>; 3], light: &[f32], w: usize, r: usize, rows: usize)
             *o = *near.select_nth_unstable_by(half, f32::total_cmp).1 + DARK_WEIGHT;
         }
     });
-    let window_weight = window_sums(&weight, w, r, rows);
+    let window_weight = box_sums(&weight, w, r, rows);
     std::array::from_fn(|c| {
         let share: Vec<f32> = taken[c].par_iter().zip(&window_weight).map(|(t, s)| t / s).collect();
-        let received = window_sums(&share, w, r, rows);
+        let received = box_sums(&share, w, r, rows);
         // No pixel takes more than its own light again: light that would is dropped.
         received.into_par_iter().zip(&weight).map(|(s, &k)| (s * k).min(k)).collect()
     })
 }
 
-/// What a diffuse ceiling took from rows of a band (`[c][pixel]`), and their noisy light
-/// (the mean of the channels), both exposed radiance: what [`spread`] shares out, and by.
-#[derive(Default, Clone)]
-pub(crate) struct Take {
-    pub(crate) taken: [Vec<f32>; 3],
-    pub(crate) light: Vec<f32>,
-}
+/// What a diffuse ceiling took from rows of a band (planes 0–2: `[c][pixel]`), and their
+/// noisy light (plane 3: the mean of the channels), both exposed radiance: what [`spread`]
+/// shares out, and by.
+pub(crate) type Take = BandPlanes<4>;
 
 impl Take {
-    /// Rows `rows` of it (`w` wide).
-    pub(crate) fn rows(&self, rows: Range<usize>, w: usize) -> Take {
-        let cut = rows.start * w..rows.end * w;
-        Take { taken: std::array::from_fn(|c| self.taken[c][cut.clone()].to_vec()), light: self.light[cut].to_vec() }
-    }
-
-    /// `self` with `below`'s rows after its own.
-    pub(crate) fn then(mut self, below: &Take) -> Take {
-        for c in 0..3 {
-            self.taken[c].extend_from_slice(&below.taken[c]);
-        }
-        self.light.extend_from_slice(&below.light);
-        self
-    }
-
-    /// Its rows, `w` wide.
-    pub(crate) fn height(&self, w: usize) -> usize {
-        self.taken[0].len() / w.max(1)
-    }
-
     /// What it shares out over the window of radius `r` ([`spread`]) to each of its rows.
     pub(crate) fn spread(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
-        spread(&self.taken, &self.light, w, r, self.height(w))
+        spread(&self.0[..3], &self.0[3], w, r, self.height(w))
     }
 }
 
@@ -181,7 +139,8 @@ mod tests {
     #[test]
     fn a_band_receives_what_the_whole_frame_does_bit_for_bit() {
         let (w, h, r) = (29, 40, 4usize);
-        let whole = Take { taken: frame(w, h, 8), light: frame(w, h, 9)[0].clone() };
+        let [a, b, c] = frame(w, h, 8);
+        let whole = Take::from([a, b, c, frame(w, h, 9)[0].clone()]);
         let all = whole.spread(w, r);
         for band in [0..9usize, 9..25, 25..40, 3..4] {
             // Its window's windows' medians: 2r + 1 rows each side.

@@ -1,0 +1,226 @@
+//! The detail the diffuse branch smoothed away, restored
+//! ([`crate::model::Architecture::diffuse_detail`]). The network's kernels average a bumpy
+//! surface's shading flat: its irradiance follows the shading normal from pixel to pixel,
+//! and the kernels see that in the normals but keep too little of it (on our Cycles
+//! corpus, most of `balanced`'s error on bump-mapped floors). What the noisy d̃ shows
+//! beyond d̂ is that detail plus noise; over each window, the part of it that follows the
+//! normals, fitted by least squares (a guided filter on the residual, guided by the
+//! normal), is the detail, and the noise, which does not follow the normals, stays out.
+
+use super::{BandPlanes, box_sums};
+use rayon::prelude::*;
+
+/// Added to the normals' covariance over a window before it is inverted: where the normals
+/// barely vary (a flat wall), no noise is read as detail. Chosen on our own Cycles corpus,
+/// simulator frames and crops (BENCHMARKS.md, "The diffuse detail restored").
+const RIDGE: f32 = 0.01;
+
+/// A pixel's detail moves it towards its noisy value, never away from it by more than this
+/// many standard errors of that value (from its variance, or its window's mean variance if
+/// that is more: a pixel whose few samples all saw nothing has no variance, yet is as noisy
+/// as its neighbours): where the fit says more, its window straddles light the kernels got
+/// wrong (the edge of a sun stripe), not detail.
+const AWAY_ERRORS: f32 = 2.0;
+
+/// What [`Detail::restore`] reads of rows of a band, each plane `[pixel]`: d̂ within its
+/// ceiling (planes 0–2), the noisy d̃ (3–5), the shading normal (6–8) and the variance of
+/// d̃ (9), exposed.
+pub(crate) type Detail = BandPlanes<10>;
+
+impl Detail {
+    /// The detail to add to each pixel's d̂ (its rows, `w` wide), from windows of radius
+    /// `r`: over the window around each pixel, the residual (noisy d̃ − d̂, each channel
+    /// held within ±d̂, so that a firefly weighs no more than the light beside it) is
+    /// fitted by least squares to the normals; each pixel gets the mean over the windows
+    /// around it of their fits' slopes, times how far its normal is from its window's mean
+    /// normal. Between 0 and the residual, widened by [`AWAY_ERRORS`] standard errors, and
+    /// within ±d̂ per channel; 0 where an input is not finite. Exact for rows whose
+    /// windows' windows (2r rows each side) lie within these rows or beyond the frame's
+    /// edges; each sum in the same order whatever the rows are, so that bands of a frame
+    /// get what the whole frame would, bit for bit.
+    pub(crate) fn restore(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
+        let rows = self.height(w);
+        let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
+        let d_hat = &self.0[..3];
+        let residual: Vec<Vec<f32>> = (0..3)
+            .map(|c| {
+                let (d, noisy) = (&self.0[c], &self.0[3 + c]);
+                d.par_iter()
+                    .zip(noisy)
+                    .map(|(&d, &n)| if d.is_finite() { finite((n - d).clamp(-d.abs(), d.abs())) } else { 0.0 })
+                    .collect()
+            })
+            .collect();
+        let normal: Vec<Vec<f32>> = self.0[6..9].iter().map(|p| p.par_iter().map(|&v| finite(v)).collect()).collect();
+        let mean = |plane: &[f32], count: &[f32]| -> Vec<f32> {
+            box_sums(plane, w, r, rows).into_par_iter().zip(count).map(|(s, n)| s / n).collect()
+        };
+        let product = |a: &[f32], b: &[f32]| -> Vec<f32> { a.par_iter().zip(b).map(|(a, b)| a * b).collect() };
+        let count = box_sums(&vec![1f32; w * rows], w, r, rows);
+        let g: Vec<Vec<f32>> = normal.iter().map(|p| mean(p, &count)).collect();
+        let e: Vec<Vec<f32>> = residual.iter().map(|p| mean(p, &count)).collect();
+        let variance: Vec<f32> = self.0[9].par_iter().map(|&v| finite(v).max(0.0)).collect();
+        let noise = mean(&variance, &count);
+        // Second moments over each window: normals with normals (j ≤ k), normals with the
+        // residual.
+        let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean(&product(&normal[j], &normal[k]), &count)).collect();
+        let ge: Vec<Vec<f32>> = (0..9).map(|i| mean(&product(&normal[i / 3], &residual[i % 3]), &count)).collect();
+        // Each window's slopes: slope[j * 3 + c] is the residual's channel c per unit of
+        // normal component j.
+        let n = w * rows;
+        let mut slopes: Vec<Vec<f32>> = vec![vec![0f32; n]; 9];
+        {
+            let mut columns: Vec<&mut [f32]> = slopes.iter_mut().map(Vec::as_mut_slice).collect();
+            let fit = |i: usize| -> [f32; 9] {
+                let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
+                let mut c = [[0f64; 3]; 3];
+                for (p, &(j, k)) in PAIRS.iter().enumerate() {
+                    let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
+                    (c[j][k], c[k][j]) = (v, v);
+                }
+                let inverse = invert(&c);
+                let mut out = [0f32; 9];
+                for ch in 0..3 {
+                    let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
+                    for j in 0..3 {
+                        out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
+                    }
+                }
+                out
+            };
+            let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
+            for (i, f) in fits.iter().enumerate() {
+                for (col, v) in columns.iter_mut().zip(f) {
+                    col[i] = *v;
+                }
+            }
+        }
+        let slope: Vec<Vec<f32>> = slopes.iter().map(|p| mean(p, &count)).collect();
+        std::array::from_fn(|ch| {
+            (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let v: f32 = (0..3).map(|j| slope[j * 3 + ch][i] * (normal[j][i] - g[j][i])).sum();
+                    let (e, away) = (residual[ch][i], AWAY_ERRORS * finite(variance[i].max(noise[i]).sqrt()));
+                    let bound = d_hat[ch][i].abs();
+                    if v.is_finite() && bound.is_finite() {
+                        v.clamp(e.min(0.0) - away, e.max(0.0) + away).clamp(-bound, bound)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+    }
+}
+
+/// The normal components' pairs (j ≤ k) whose products a window's covariance needs.
+const PAIRS: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+
+/// The inverse of a symmetric 3×3 matrix that the ridge keeps positive definite (by its
+/// cofactors); zeros where it is not finite.
+fn invert(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let cof = |r: usize, c: usize| {
+        let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+        let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
+        m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
+    };
+    let det = (0..3).map(|c| m[0][c] * cof(0, c)).sum::<f64>();
+    if !(det.is_finite() && det > 0.0) {
+        return [[0.0; 3]; 3];
+    }
+    std::array::from_fn(|r| std::array::from_fn(|c| cof(c, r) / det))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A bumpy floor: normals that wander from pixel to pixel, shading that follows them
+    /// (light from +x), d̂ smoothed flat, and the noisy d̃ (the shading plus noise of
+    /// `noise` standard deviation).
+    fn floor(w: usize, h: usize, noise: f32, seed: u64) -> (Detail, Vec<f32>) {
+        let mut rng = crate::rng::SplitMix64(seed);
+        let mut planes: [Vec<f32>; 10] = std::array::from_fn(|_| vec![0f32; w * h]);
+        let mut truth = vec![0f32; w * h];
+        for i in 0..w * h {
+            let (nx, ny) = (rng.uniform_f32() - 0.5, rng.uniform_f32() - 0.5);
+            let nz = (1.0 - nx * nx - ny * ny).sqrt();
+            truth[i] = 1.0 + nx;
+            for c in 0..3 {
+                planes[c][i] = 1.0;
+                planes[3 + c][i] = truth[i] + noise * 2.0 * (rng.uniform_f32() - 0.5) * 3f32.sqrt();
+            }
+            (planes[6][i], planes[7][i], planes[8][i], planes[9][i]) = (nx, ny, nz, noise * noise);
+        }
+        (BandPlanes(planes), truth)
+    }
+
+    fn squared_error(a: &[f32], b: &[f32]) -> f64 {
+        a.iter().zip(b).map(|(a, b)| f64::from(a - b).powi(2)).sum()
+    }
+
+    #[test]
+    fn shading_that_follows_the_normals_comes_back_and_noise_stays_out() {
+        let (w, h) = (40, 30);
+        let (floor, truth) = floor(w, h, 0.1, 1);
+        let detail = floor.restore(w, 7);
+        for (c, detail) in detail.iter().enumerate() {
+            let restored: Vec<f32> = floor.0[c].iter().zip(detail).map(|(d, e)| d + e).collect();
+            let (before, after) = (squared_error(&floor.0[c], &truth), squared_error(&restored, &truth));
+            assert!(after < before / 10.0, "channel {c}: {before} → {after}");
+            // Never nearer the noisy input than to the truth: its noise stays out.
+            assert!(after < squared_error(&floor.0[3 + c], &truth) / 5.0);
+        }
+        // A pixel whose noisy value equals d̂ moves towards its fit at most two standard
+        // errors of its window's noise (0.1 here).
+        let at = (0..w * h).max_by(|&a, &b| detail[0][a].abs().total_cmp(&detail[0][b].abs())).unwrap();
+        let mut exact = floor.clone();
+        for c in 0..3 {
+            exact.0[3 + c][at] = exact.0[c][at];
+        }
+        let moved = exact.restore(w, 7)[0][at];
+        assert!(detail[0][at].abs() > 0.3 && moved.abs() <= 0.2 + 1e-3, "{} → {moved}", detail[0][at]);
+        // Noise alone, on a flat wall (every normal alike), restores nothing.
+        let mut wall = floor.clone();
+        for (p, v) in wall.0[6..9].iter_mut().zip([0.0, 0.0, 1.0]) {
+            p.fill(v);
+        }
+        assert!(wall.restore(w, 7).iter().flatten().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn a_band_gets_what_the_whole_frame_does_bit_for_bit() {
+        let (w, h, r) = (23, 50, 3usize);
+        let (whole, _) = floor(w, h, 0.3, 2);
+        let all = whole.restore(w, r);
+        for band in [0..9usize, 9..30, 30..50, 20..21] {
+            let rows = band.start.saturating_sub(2 * r)..(band.end + 2 * r).min(h);
+            let out = whole.rows(rows.clone(), w).restore(w, r);
+            for c in 0..3 {
+                let (a, b) = (band.start - rows.start, band.end - rows.start);
+                assert_eq!(out[c][a * w..b * w], all[c][band.start * w..band.end * w], "{band:?}");
+            }
+        }
+        let (top, bottom) = (whole.rows(0..20, w), whole.rows(20..50, w));
+        assert_eq!(top.then(&bottom).restore(w, r), all);
+    }
+
+    #[test]
+    fn hostile_values_restore_finite_detail_within_d_hat() {
+        let (w, h) = (12, 9);
+        let (mut f, _) = floor(w, h, 0.5, 3);
+        let hostile = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 3e38, -3e38, 1e-30];
+        for (i, &v) in hostile.iter().enumerate() {
+            f.0[i % 10][i * 13 % (w * h)] = v;
+            f.0[3 + i % 3][i * 7 % (w * h)] = v;
+        }
+        let detail = f.restore(w, 2);
+        for (c, detail) in detail.iter().enumerate() {
+            for (i, &v) in detail.iter().enumerate() {
+                let d = f.0[c][i];
+                assert!(v.is_finite() && (v.abs() <= d.abs() || !d.is_finite() && v == 0.0), "({c}, {i}): {v} on {d}");
+            }
+        }
+    }
+}
