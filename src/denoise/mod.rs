@@ -272,8 +272,7 @@ impl Denoiser {
         if self.streams(width) {
             // Both branches' streams, their output rows held until a band is complete (as
             // many as a stream holds, and the next band's where its diffuse output reads
-            // them), and a
-            // band's result of nine planes.
+            // them), and a band's result of nine planes.
             let (_, held) = self.stream_region(width);
             let next = if Bounds::reads_neighbours(&self.model.arch) { rows.len() } else { 0 };
             return Features::bytes(width, total_rows)
