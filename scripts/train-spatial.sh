@@ -25,10 +25,11 @@
 #      every 5th scene held out (WORK/cycles/run, its learning curve in log.csv);
 #   4. a second segment on the same data from step 3's weights, its held-out error still
 #      falling: lr 3e-5 cosine, 3,000 steps (WORK/cycles/run2).
-# The result keeps step 1's clamp and ceiling: copy WORK/cycles/run2/model.safetensors to
+#   5. the diffuse detail restored over 15x15 windows (`kpcn model detail --radius 7`).
+# The result keeps step 1's clamp and ceiling: copy WORK/spatial.safetensors to
 # models/spatial.safetensors. Score it against the shipped model on the held-out scenes with
 #   SPLIT=validation ONLY='^cyc-' CHANNELS=ViewLayer.Denoised \
-#     benches/quality_corpus.sh WORK/cycles/data spatial WORK/cycles/run2/model.safetensors
+#     benches/quality_corpus.sh WORK/cycles/data spatial WORK/spatial.safetensors
 set -euo pipefail
 cd "$(dirname "$0")/.."
 corpus=${1:?usage: scripts/train-spatial.sh CORPUS SCENES}
@@ -56,3 +57,5 @@ KPCN_WORK=$work/cycles KPCN_SIM=$sim KPCN_LOSS=l1 KPCN_LR=5e-5 KPCN_LR2=2e-5 KPC
 
 KPCN_WORK=$work/cycles KPCN_RUN=run2 KPCN_SIM=$sim KPCN_LOSS=l1 KPCN_LR=3e-5 KPCN_STEPS=3000 \
     KPCN_PHASE2_STEPS=0 scripts/train-cycles.sh "$corpus/raw" "$scenes" "$work/cycles/run/model.safetensors"
+"$kpcn" model detail "$work/cycles/run2/model.safetensors" --radius 7 -o "$work/spatial.safetensors"
+echo "$work/spatial.safetensors"

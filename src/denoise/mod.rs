@@ -410,10 +410,17 @@ impl Denoiser {
     }
 
     /// Rows `rows` of a region `total_rows` tall, with the rows beyond them whose diffuse
-    /// output theirs reads ([`Bounds::diffuse_context`]): the rows a band denoises.
+    /// output theirs reads (`diffuse_margin`): the rows a band denoises.
     pub(crate) fn diffuse_rows(&self, rows: std::ops::Range<usize>, total_rows: usize) -> std::ops::Range<usize> {
-        let r = Bounds::diffuse_context(&self.model.arch);
+        let r = self.diffuse_margin();
         rows.start.saturating_sub(r)..(rows.end + r).min(total_rows)
+    }
+
+    /// The rows a band denoises beyond its own for its diffuse output
+    /// ([`Bounds::diffuse_context`]), rounded up to the network's pooling grid: the rows it
+    /// denoises start on the grid, as a band does, so each comes out as in the whole frame.
+    fn diffuse_margin(&self) -> usize {
+        Bounds::diffuse_context(&self.model.arch).next_multiple_of(self.model.arch.alignment())
     }
 
     /// Context rows each band of a streamed `width`-wide frame is read with: where the
@@ -428,7 +435,7 @@ impl Denoiser {
         }
         // A band also denoises the rows its diffuse output reads (`diffuse_rows`), each
         // with its own context.
-        self.model.arch.reach().max(bounds) + Bounds::diffuse_context(&self.model.arch)
+        self.model.arch.reach().max(bounds) + self.diffuse_margin()
     }
 
     /// One branch on one tile: d̂ or ŝ for the tile's pixels.

@@ -360,9 +360,12 @@ mod tests {
             assert!(!m.is_untrained() && m.arch.feature_radius() >= 170, "{}", q.name());
         }
         // `spatial` ships under the same ceiling (its errors from the window's median
-        // variance), its specular branch unbounded.
+        // variance) and with its detail restored, its specular branch unbounded.
         let s = Model::resolve("spatial").unwrap().arch;
-        assert_eq!((s.variances, s.diffuse_bound, s.specular_bound), (Variances::Spatial, Some(2), None));
+        assert_eq!(
+            (s.variances, s.diffuse_bound, s.diffuse_detail, s.specular_bound),
+            (Variances::Spatial, Some(2), Some(7), None)
+        );
     }
 
     #[test]
