@@ -65,37 +65,32 @@ impl Detail {
         // residual.
         let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean(&product(&normal[j], &normal[k]), &count)).collect();
         let ge: Vec<Vec<f32>> = (0..9).map(|i| mean(&product(&normal[i / 3], &residual[i % 3]), &count)).collect();
-        // Each window's slopes: slope[j * 3 + c] is the residual's channel c per unit of
+        // Each window's slopes: fit[j * 3 + c] is the residual's channel c per unit of
         // normal component j.
         let n = w * rows;
-        let mut slopes: Vec<Vec<f32>> = vec![vec![0f32; n]; 9];
-        {
-            let mut columns: Vec<&mut [f32]> = slopes.iter_mut().map(Vec::as_mut_slice).collect();
-            let fit = |i: usize| -> [f32; 9] {
-                let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
-                let mut c = [[0f64; 3]; 3];
-                for (p, &(j, k)) in PAIRS.iter().enumerate() {
-                    let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
-                    (c[j][k], c[k][j]) = (v, v);
-                }
-                let inverse = invert(&c);
-                let mut out = [0f32; 9];
-                for ch in 0..3 {
-                    let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
-                    for j in 0..3 {
-                        out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
-                    }
-                }
-                out
-            };
-            let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
-            for (i, f) in fits.iter().enumerate() {
-                for (col, v) in columns.iter_mut().zip(f) {
-                    col[i] = *v;
+        let fit = |i: usize| -> [f32; 9] {
+            let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
+            let mut c = [[0f64; 3]; 3];
+            for (p, &(j, k)) in PAIRS.iter().enumerate() {
+                let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
+                (c[j][k], c[k][j]) = (v, v);
+            }
+            let inverse = invert(&c);
+            let mut out = [0f32; 9];
+            for ch in 0..3 {
+                let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
+                for j in 0..3 {
+                    out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
                 }
             }
-        }
-        let slope: Vec<Vec<f32>> = slopes.iter().map(|p| mean(p, &count)).collect();
+            out
+        };
+        let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
+        drop((e, gg, ge));
+        // The mean over the windows around each pixel of their slopes, one plane at a time.
+        let slope: Vec<Vec<f32>> =
+            (0..9).map(|k| mean(&fits.par_iter().map(|f| f[k]).collect::<Vec<f32>>(), &count)).collect();
+        drop(fits);
         std::array::from_fn(|ch| {
             (0..n)
                 .into_par_iter()
