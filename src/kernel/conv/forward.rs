@@ -308,41 +308,60 @@ impl Job<'_> {
         }
     }
 
+    /// Row `y` in groups of up to [`NV_AVX2`] segments of 8 pixels, each group by blocks
+    /// of up to [`M_AVX2`] output channels (half a weight panel): 8 accumulators, and per
+    /// tap 2 loads and 4 broadcasts for 8 multiply-adds. Larger blocks (4 × 3, 6 × 2) need
+    /// all 16 registers, and the compiler's spills made them slower on Zen.
+    ///
+    /// # Safety
+    /// As [`Job::rows`], and AVX2 and FMA are available.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn row_avx2(&self, y: usize, out: *mut f32) {
         use std::arch::x86_64::*;
-        const NR: usize = 8;
         let l = self.layer;
         let kk = l.cin * l.k * l.k;
-        for x in (0..self.w).step_by(NR) {
-            let left = (self.w - x).min(NR) as i32;
-            let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-            for b in 0..l.cout.div_ceil(MR) {
-                let m = (l.cout - b * MR).min(MR);
+        for x in (0..self.w).step_by(8 * NV_AVX2) {
+            let n = (self.w - x).min(8 * NV_AVX2);
+            let (nv, tail) = (n.div_ceil(8), n % 8);
+            // The lanes of the group's last segment inside the plane.
+            let last = if tail == 0 { 8 } else { tail } as i32;
+            let mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(last), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+            for c0 in (0..l.cout).step_by(M_AVX2) {
+                let (b, j0) = (c0 / MR, c0 % MR);
+                let m = (l.cout - c0).min(M_AVX2);
                 let a = Block {
                     src: self.src[((y - self.y0) * self.pw + x)..].as_ptr(),
-                    panel: l.packed[b * kk * MR..].as_ptr(),
-                    bias: l.bias[b * MR..].as_ptr(),
-                    dst: out.wrapping_add((b * MR * self.h + y) * self.w + x),
+                    panel: l.packed[b * kk * MR + j0..].as_ptr(),
+                    bias: l.bias[c0..].as_ptr(),
+                    dst: out.wrapping_add((c0 * self.h + y) * self.w + x),
                     out_plane: self.w * self.h,
                     channels: l.cin,
                     first: true,
                     last: true,
                 };
                 // SAFETY: unmasked reads stay inside the padded planes; writes stay in
-                // row y of channels b·MR.. + m, masked to the columns < w.
+                // row y of channels c0.. + m, masked to the columns < w.
                 unsafe {
-                    if left == NR as i32 {
-                        with_const!(m, M => block_avx2::<M, false>(self, &a, mask), [8 7 6 5 4 3 2] else 1)
-                    } else {
-                        with_const!(m, M => block_avx2::<M, true>(self, &a, mask), [8 7 6 5 4 3 2] else 1)
+                    macro_rules! by_segments {
+                        ($masked:literal) => {
+                            with_const!(nv, NV => with_const!(m, M => block_avx2::<M, NV, $masked>(self, &a, mask), [4 3 2] else 1), [2] else 1)
+                        };
                     }
+                    if tail == 0 { by_segments!(false) } else { by_segments!(true) }
                 };
             }
         }
     }
 }
+
+/// Output channels per AVX2 micro-kernel block: half a weight panel.
+#[cfg(target_arch = "x86_64")]
+const M_AVX2: usize = MR / 2;
+
+/// Segments of 8 pixels per AVX2 micro-kernel block.
+#[cfg(target_arch = "x86_64")]
+const NV_AVX2: usize = 2;
 
 /// One micro-kernel block's pointers.
 struct Block {
@@ -430,41 +449,55 @@ unsafe fn block_avx512<const M: usize, const NV: usize>(job: &Job, a: &Block, se
     }
 }
 
-/// `M` output channels × 8 pixels; only the lanes of `mask` (the columns < w) when
-/// `MASKED`.
+/// `M` output channels × `NV` segments of 8 consecutive pixels; the last segment only in
+/// the lanes of `mask` (the columns < w) when `MASKED`.
 ///
 /// # Safety
 /// AVX2 and FMA are available; `a`'s pointers are valid for the unmasked lanes.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn block_avx2<const M: usize, const MASKED: bool>(job: &Job, a: &Block, mask: std::arch::x86_64::__m256i) {
+unsafe fn block_avx2<const M: usize, const NV: usize, const MASKED: bool>(
+    job: &Job,
+    a: &Block,
+    mask: std::arch::x86_64::__m256i,
+) {
     use std::arch::x86_64::*;
     let (k, cin, pw, plane) = (job.layer.k, a.channels, job.pw, job.pw * job.ph);
     // SAFETY: the caller's contract: the instructions exist and every access is in bounds.
     unsafe {
-        let mut acc = [_mm256_setzero_ps(); M];
-        for (j, v) in acc.iter_mut().enumerate() {
-            *v = _mm256_set1_ps(*a.bias.add(j));
+        let mut acc = [[_mm256_setzero_ps(); NV]; M];
+        for (j, row) in acc.iter_mut().enumerate() {
+            *row = [_mm256_set1_ps(*a.bias.add(j)); NV];
         }
         let mut wp = a.panel;
         for ci in 0..cin {
             for ky in 0..k {
                 let row = a.src.add(ci * plane + ky * pw);
                 for kx in 0..k {
-                    let v = if MASKED { _mm256_maskload_ps(row.add(kx), mask) } else { _mm256_loadu_ps(row.add(kx)) };
-                    for (j, s) in acc.iter_mut().enumerate() {
-                        *s = _mm256_fmadd_ps(v, _mm256_set1_ps(*wp.add(j)), *s);
+                    let mut v = [_mm256_setzero_ps(); NV];
+                    for (i, vi) in v.iter_mut().enumerate() {
+                        let p = row.add(kx + 8 * i);
+                        *vi = if MASKED && i == NV - 1 { _mm256_maskload_ps(p, mask) } else { _mm256_loadu_ps(p) };
+                    }
+                    for (j, accj) in acc.iter_mut().enumerate() {
+                        let wv = _mm256_set1_ps(*wp.add(j));
+                        for i in 0..NV {
+                            accj[i] = _mm256_fmadd_ps(v[i], wv, accj[i]);
+                        }
                     }
                     wp = wp.add(MR);
                 }
             }
         }
-        for (j, &s) in acc.iter().enumerate() {
-            let o = if job.relu { _mm256_max_ps(s, _mm256_setzero_ps()) } else { s };
-            if MASKED {
-                _mm256_maskstore_ps(a.dst.add(j * a.out_plane), mask, o);
-            } else {
-                _mm256_storeu_ps(a.dst.add(j * a.out_plane), o);
+        for (j, accj) in acc.iter().enumerate() {
+            let dst = a.dst.add(j * a.out_plane);
+            for (i, &s) in accj.iter().enumerate() {
+                let o = if job.relu { _mm256_max_ps(s, _mm256_setzero_ps()) } else { s };
+                if MASKED && i == NV - 1 {
+                    _mm256_maskstore_ps(dst.add(8 * i), mask, o);
+                } else {
+                    _mm256_storeu_ps(dst.add(8 * i), o);
+                }
             }
         }
     }
@@ -529,8 +562,11 @@ mod tests {
     #[test]
     fn every_instruction_set_gives_the_same_bits() {
         // More input channels than one chunk, more rows than one band, a ragged last
-        // block; widths that take the row-wise (45) and the flat (24, 12) AVX-512 paths.
-        for (cin, cout, k, w, h) in [(20, 11, 3, 45, 11), (20, 11, 3, 24, 11), (7, 9, 3, 12, 5), (6, 5, 1, 12, 9)] {
+        // block; widths that take the row-wise (45, 21) and the flat (24, 12) AVX-512 paths,
+        // and end AVX2's 16-pixel groups with one or two segments, masked or not.
+        for (cin, cout, k, w, h) in
+            [(20, 11, 3, 45, 11), (20, 11, 3, 24, 11), (7, 9, 3, 12, 5), (6, 5, 1, 12, 9), (5, 6, 3, 21, 4)]
+        {
             let r = (k - 1) / 2;
             let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
             let layer =

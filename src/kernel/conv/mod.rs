@@ -6,8 +6,8 @@
 //! micro-kernel broadcasts them from one contiguous stream; input rows are read straight
 //! from zero-padded bands of rows (no im2col copy). With AVX-512 a block is 8 output
 //! channels × 3 segments of 16 pixels (24 accumulators, masked at the edges; narrow
-//! planes run their segments across row ends, see `Job::rows_avx512`); with AVX2,
-//! 8 × 8; otherwise scalar. Every output value starts at its bias and adds
+//! planes run their segments across row ends, see `Job::rows_avx512`); with AVX2, 4
+//! output channels (half a panel) × 3 segments of 8 pixels; otherwise scalar. Every output value starts at its bias and adds
 //! `input·weight` with one fused multiply-add per term, in the order (input channel,
 //! row, column), wherever it lies in the plane and whichever path runs, so tiles and
 //! bands equal the whole frame bit for bit.
