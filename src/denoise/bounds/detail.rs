@@ -27,7 +27,36 @@ const AWAY_ERRORS: f32 = 2.0;
 /// d̃ (9), exposed.
 pub(crate) type Detail = BandPlanes<10>;
 
+/// Output rows [`Detail::restore`] works on at a time, per this many pixels: its sums and
+/// fits hold about 48 floats per pixel of a chunk (and its 4r rows of context), so a band
+/// of any height holds them for a few hundred thousand pixels, not for all of its own.
+const CHUNK_PIXELS: usize = 1 << 18;
+
 impl Detail {
+    /// [`Detail::restore_rows`] of every row, in chunks of about [`CHUNK_PIXELS`], each
+    /// with the 2r rows above and below that its windows' windows reach: the same values,
+    /// bit for bit, in a bounded working set.
+    pub(crate) fn restore(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
+        self.restore_in_chunks(w, r, (CHUNK_PIXELS / w.max(1)).max(4 * r).max(1))
+    }
+
+    fn restore_in_chunks(&self, w: usize, r: usize, chunk: usize) -> [Vec<f32>; 3] {
+        let rows = self.height(w);
+        if rows <= chunk {
+            return self.restore_rows(w, r);
+        }
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(w * rows));
+        for a in (0..rows).step_by(chunk) {
+            let b = (a + chunk).min(rows);
+            let span = a.saturating_sub(2 * r)..(b + 2 * r).min(rows);
+            let part = self.rows(span.clone(), w).restore_rows(w, r);
+            for (o, p) in out.iter_mut().zip(&part) {
+                o.extend_from_slice(&p[(a - span.start) * w..(b - span.start) * w]);
+            }
+        }
+        out
+    }
+
     /// The detail to add to each pixel's d̂ (its rows, `w` wide), from windows of radius
     /// `r`: over the window around each pixel, the residual (noisy d̃ − d̂, each channel
     /// held within ±d̂, so that a firefly weighs no more than the light beside it) is
@@ -38,7 +67,7 @@ impl Detail {
     /// windows' windows (2r rows each side) lie within these rows or beyond the frame's
     /// edges; each sum in the same order whatever the rows are, so that bands of a frame
     /// get what the whole frame would, bit for bit.
-    pub(crate) fn restore(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
+    fn restore_rows(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
         let rows = self.height(w);
         let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
         let d_hat = &self.0[..3];
@@ -199,6 +228,10 @@ mod tests {
         }
         let (top, bottom) = (whole.rows(0..20, w), whole.rows(20..50, w));
         assert_eq!(top.then(&bottom).restore(w, r), all);
+        // In chunks of rows, shorter and longer than the windows' reach: the same bits.
+        for chunk in [1, 7, 12, 49] {
+            assert_eq!(whole.restore_in_chunks(w, r, chunk), all, "chunks of {chunk} rows");
+        }
     }
 
     #[test]
