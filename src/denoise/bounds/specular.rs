@@ -1,6 +1,7 @@
 //! The specular branch's bound: how far it may move each pixel from its noisy value.
 
-use super::{CEILING_RADIUS, alike_pixels};
+use super::CEILING_RADIUS;
+use super::ceiling::alike_pixels;
 use crate::features::{Branch, Features, specular_of_log};
 use crate::kernel::planes::Planes;
 use crate::model::Architecture;
