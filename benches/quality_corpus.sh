@@ -10,6 +10,7 @@
 # `denoised` (files as Blender writes them, corpus/raw/: CHANNELS=ViewLayer.Denoised).
 # ONLY=REGEX scores only the split's scenes whose name matches (an awk regular expression:
 # ONLY='^cyc-' for the Cycles scenes of a snapshot that mixes in simulator scenes).
+# PER_SCENE=1 also prints each frame's relMSE, and the other models' multiples of it.
 # "light kept" is the denoised frame's mean over the noisy input's (geometric mean over the
 # frames; the input is the root R,G,B, or LAYER.Combined beside LAYER.Denoised), and
 # "off > 5 %" counts the frames whose ratio is more than 5 % from 1: brightness, which
@@ -85,3 +86,13 @@ awk -v names="$*" 'BEGIN { split(names, N, " ") }
 printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %-21s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %" "× floor"
 # In the order the models were named, then by sample count.
 for model in "$@"; do grep "^$model " "$work/table" | sort -k2,2n; done
+# PER_SCENE=1: each frame's relMSE under the first model and every other's multiple of it,
+# to see which scenes a geometric mean's change comes from.
+if [ -n "${PER_SCENE:-}" ]; then
+    echo
+    awk '{ r[$3, $2, $1] = $4; scene[$3, $2] = $3; spp[$3, $2] = $2; models = $1 > models ? $1 : models }
+        END { for (k in scene) { line = sprintf("%-20s %4d %9.5f", scene[k], spp[k], r[k, 0])
+                for (m = 1; m <= models; m++) line = line sprintf(" %7.3f", r[k, 0] > 0 ? r[k, m] / r[k, 0] : 0)
+                print line } }' "$work/scores" | sort -k1,1 -k2,2n |
+        { printf '%-20s %4s %9s %s\n' scene spp relMSE "× first model, each other model in order"; cat; }
+fi
