@@ -93,8 +93,9 @@ pub struct DenoiseArgs {
     /// 390 MB), bands run in tiles with the network's context rows instead, never thinner
     /// than twice the reach: slower, within the budget. Not counted: the process's fixed
     /// cost (program, libraries, model, OpenEXR's row buffers for each decoding and
-    /// encoding thread, thread stacks; 200-450 MB). Measured peak RSS with the default:
-    /// 1920x1080 with 41 channels 748 MiB, 3840x2160 936 MiB.
+    /// encoding thread, thread stacks; 200-450 MB), and the diffuse detail step's working
+    /// rows (chunks of about 2^18 pixels: 50-80 MB). Measured peak RSS with the default:
+    /// 1920x1080 with 41 channels 810 MiB, 3840x2160 1008 MiB.
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
