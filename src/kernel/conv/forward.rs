@@ -355,9 +355,12 @@ impl Job<'_> {
     }
 }
 
-/// Output channels per AVX2 micro-kernel block: half a weight panel.
+/// Output channels per AVX2 micro-kernel block: half a weight panel, so no block
+/// straddles two panels.
 #[cfg(target_arch = "x86_64")]
 const M_AVX2: usize = MR / 2;
+#[cfg(target_arch = "x86_64")]
+const _: () = assert!(MR % M_AVX2 == 0);
 
 /// Segments of 8 pixels per AVX2 micro-kernel block.
 #[cfg(target_arch = "x86_64")]

@@ -7,10 +7,10 @@
 //! from zero-padded bands of rows (no im2col copy). With AVX-512 a block is 8 output
 //! channels × 3 segments of 16 pixels (24 accumulators, masked at the edges; narrow
 //! planes run their segments across row ends, see `Job::rows_avx512`); with AVX2, 4
-//! output channels (half a panel) × 3 segments of 8 pixels; otherwise scalar. Every output value starts at its bias and adds
-//! `input·weight` with one fused multiply-add per term, in the order (input channel,
-//! row, column), wherever it lies in the plane and whichever path runs, so tiles and
-//! bands equal the whole frame bit for bit.
+//! output channels (half a panel) × 2 segments of 8 pixels; otherwise scalar. Every
+//! output value starts at its bias and adds `input·weight` with one fused multiply-add
+//! per term, in the order (input channel, row, column), wherever it lies in the plane and
+//! whichever path runs, so tiles and bands equal the whole frame bit for bit.
 //!
 //! The weight gradient vectorises over pixels (`Taps`), or over output channels for
 //! 3×3 layers wider than 16 (`by_channel`); the input gradient is the forward pass with
