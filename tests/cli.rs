@@ -381,3 +381,34 @@ fn model_bound_rewrites_each_branchs_bound_and_info_shows_them() {
     let out = kpcn(&["model", "detail", &both, "--radius", "16", "-o", "x.safetensors"]);
     assert!(!out.status.success() && text(&out.stderr).contains("at most 15"), "{}", text(&out.stderr));
 }
+
+#[test]
+fn no_help_text_shows_rustdoc_markup() {
+    // Doc comments are both the API docs and `--help`: a rustdoc link there reads as
+    // noise to a user.
+    fn commands(help: &str) -> Vec<String> {
+        let listed = help.lines().skip_while(|l| !l.starts_with("Commands:")).skip(1);
+        // A command's line starts with two spaces; its description's wrapped lines with more.
+        let named = listed.take_while(|l| !l.trim().is_empty()).filter(|l| !l.starts_with("   "));
+        let names = named.filter_map(|l| l.split_whitespace().next());
+        names.filter(|n| *n != "help").map(str::to_owned).collect()
+    }
+    let help = |path: &[String]| {
+        let mut args: Vec<&str> = path.iter().map(String::as_str).collect();
+        args.push("--help");
+        let out = kpcn(&args);
+        assert!(out.status.success(), "kpcn {}", args.join(" "));
+        text(&out.stdout)
+    };
+    let mut todo = vec![Vec::new()];
+    let mut seen = 0;
+    while let Some(path) = todo.pop() {
+        let page = help(&path);
+        for markup in ["[`", "](crate::", "](super::"] {
+            assert!(!page.contains(markup), "`kpcn {} --help` shows {markup}:\n{page}", path.join(" "));
+        }
+        seen += 1;
+        todo.extend(commands(&page).into_iter().map(|c| [path.clone(), vec![c]].concat()));
+    }
+    assert!(seen >= 8, "only {seen} help pages");
+}

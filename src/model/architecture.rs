@@ -118,8 +118,8 @@ pub enum Exposure {
     /// As rendered.
     #[default]
     Raw,
-    /// Scaled so that the frame's key (the geometric mean of its 16×16 block luminances,
-    /// [`crate::features::ExposureMeter`]) is 0.18, as OIDN's autoexposure does.
+    /// Scaled so that the frame's key (the geometric mean of its 16×16 block luminances)
+    /// is 0.18, as OIDN's autoexposure does.
     Auto,
 }
 
@@ -287,13 +287,11 @@ pub enum Clamp {
     /// go first; a line one pixel wide loses two pixels at each end.
     FinePairsTwice,
     /// `FinePairsTwice`, and rare bright samples taken down: a value far above its 3×3
-    /// median, by more than [`SIGNIFICANT_ERRORS`] times its neighbours' own standard
-    /// errors, keeps only what it shows beyond as many of its own
-    /// ([`Planes::clamp_insignificant`](crate::kernel::planes::Planes::clamp_insignificant),
-    /// from the variance features). Clusters of one-sample hits of a small bright light (a
-    /// defocused highlight's rim at 64 spp) go whatever their size; a highlight every
-    /// sample saw stays but for those errors. A region without variances clamps as
-    /// `FinePairsTwice`.
+    /// median, by more than 3 times its neighbours' own standard errors, keeps only what
+    /// it shows beyond 3 of its own (from the variance features). Clusters of one-sample
+    /// hits of a small bright light (a defocused highlight's rim at 64 spp) go whatever
+    /// their size; a highlight every sample saw stays but for those errors. A region
+    /// without variances clamps as `FinePairsTwice`.
     Significant,
 }
 
