@@ -360,7 +360,7 @@ impl Job<'_> {
 #[cfg(target_arch = "x86_64")]
 const M_AVX2: usize = MR / 2;
 #[cfg(target_arch = "x86_64")]
-const _: () = assert!(MR % M_AVX2 == 0);
+const _: () = assert!(MR.is_multiple_of(M_AVX2));
 
 /// Segments of 8 pixels per AVX2 micro-kernel block.
 #[cfg(target_arch = "x86_64")]
