@@ -33,7 +33,7 @@ pub(crate) type Detail = BandPlanes<10>;
 const CHUNK_PIXELS: usize = 1 << 18;
 
 impl Detail {
-    /// [`Detail::restore_rows`] of every row, in chunks of about [`CHUNK_PIXELS`], each
+    /// [`restore_rows`] of every row, in chunks of about [`CHUNK_PIXELS`], each
     /// with the 2r rows above and below that its windows' windows reach: the same values,
     /// bit for bit, in a bounded working set.
     pub(crate) fn restore(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
@@ -42,100 +42,102 @@ impl Detail {
 
     fn restore_in_chunks(&self, w: usize, r: usize, chunk: usize) -> [Vec<f32>; 3] {
         let rows = self.height(w);
+        // The planes' rows `span`, borrowed.
+        let view = |span: std::ops::Range<usize>| std::array::from_fn(|c| &self.0[c][span.start * w..span.end * w]);
         if rows <= chunk {
-            return self.restore_rows(w, r);
+            return restore_rows(view(0..rows), w, r);
         }
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| Vec::with_capacity(w * rows));
         for a in (0..rows).step_by(chunk) {
             let b = (a + chunk).min(rows);
             let span = a.saturating_sub(2 * r)..(b + 2 * r).min(rows);
-            let part = self.rows(span.clone(), w).restore_rows(w, r);
+            let part = restore_rows(view(span.clone()), w, r);
             for (o, p) in out.iter_mut().zip(&part) {
                 o.extend_from_slice(&p[(a - span.start) * w..(b - span.start) * w]);
             }
         }
         out
     }
+}
 
-    /// The detail to add to each pixel's d̂ (its rows, `w` wide), from windows of radius
-    /// `r`: over the window around each pixel, the residual (noisy d̃ − d̂, each channel
-    /// held within ±d̂, so that a firefly weighs no more than the light beside it) is
-    /// fitted by least squares to the normals; each pixel gets the mean over the windows
-    /// around it of their fits' slopes, times how far its normal is from its window's mean
-    /// normal. Between 0 and the residual, widened by [`AWAY_ERRORS`] standard errors, and
-    /// within ±d̂ per channel; 0 where an input is not finite. Exact for rows whose
-    /// windows' windows (2r rows each side) lie within these rows or beyond the frame's
-    /// edges; each sum in the same order whatever the rows are, so that bands of a frame
-    /// get what the whole frame would, bit for bit.
-    fn restore_rows(&self, w: usize, r: usize) -> [Vec<f32>; 3] {
-        let rows = self.height(w);
-        let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
-        let d_hat = &self.0[..3];
-        let residual: Vec<Vec<f32>> = (0..3)
-            .map(|c| {
-                let (d, noisy) = (&self.0[c], &self.0[3 + c]);
-                d.par_iter()
-                    .zip(noisy)
-                    .map(|(&d, &n)| if d.is_finite() { finite((n - d).clamp(-d.abs(), d.abs())) } else { 0.0 })
-                    .collect()
-            })
-            .collect();
-        let normal: Vec<Vec<f32>> = self.0[6..9].iter().map(|p| p.par_iter().map(|&v| finite(v)).collect()).collect();
-        let mean = |plane: &[f32], count: &[f32]| -> Vec<f32> {
-            box_sums(plane, w, r, rows).into_par_iter().zip(count).map(|(s, n)| s / n).collect()
-        };
-        let product = |a: &[f32], b: &[f32]| -> Vec<f32> { a.par_iter().zip(b).map(|(a, b)| a * b).collect() };
-        let count = box_sums(&vec![1f32; w * rows], w, r, rows);
-        let g: Vec<Vec<f32>> = normal.iter().map(|p| mean(p, &count)).collect();
-        let e: Vec<Vec<f32>> = residual.iter().map(|p| mean(p, &count)).collect();
-        let variance: Vec<f32> = self.0[9].par_iter().map(|&v| finite(v).max(0.0)).collect();
-        let noise = mean(&variance, &count);
-        // Second moments over each window: normals with normals (j ≤ k), normals with the
-        // residual.
-        let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean(&product(&normal[j], &normal[k]), &count)).collect();
-        let ge: Vec<Vec<f32>> = (0..9).map(|i| mean(&product(&normal[i / 3], &residual[i % 3]), &count)).collect();
-        // Each window's slopes: fit[j * 3 + c] is the residual's channel c per unit of
-        // normal component j.
-        let n = w * rows;
-        let fit = |i: usize| -> [f32; 9] {
-            let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
-            let mut c = [[0f64; 3]; 3];
-            for (p, &(j, k)) in PAIRS.iter().enumerate() {
-                let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
-                (c[j][k], c[k][j]) = (v, v);
-            }
-            let inverse = invert(&c);
-            let mut out = [0f32; 9];
-            for ch in 0..3 {
-                let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
-                for j in 0..3 {
-                    out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
-                }
-            }
-            out
-        };
-        let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
-        drop((e, gg, ge));
-        // The mean over the windows around each pixel of their slopes, one plane at a time.
-        let slope: Vec<Vec<f32>> =
-            (0..9).map(|k| mean(&fits.par_iter().map(|f| f[k]).collect::<Vec<f32>>(), &count)).collect();
-        drop(fits);
-        std::array::from_fn(|ch| {
-            (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    let v: f32 = (0..3).map(|j| slope[j * 3 + ch][i] * (normal[j][i] - g[j][i])).sum();
-                    let (e, away) = (residual[ch][i], AWAY_ERRORS * finite(variance[i].max(noise[i]).sqrt()));
-                    let bound = d_hat[ch][i].abs();
-                    if v.is_finite() && bound.is_finite() {
-                        v.clamp(e.min(0.0) - away, e.max(0.0) + away).clamp(-bound, bound)
-                    } else {
-                        0.0
-                    }
-                })
+/// The detail of [`Detail::restore`] over rows of the planes `planes` (as [`Detail`]'s),
+/// `w` wide, from windows of radius `r`: over the window around each pixel, the residual
+/// (noisy d̃ − d̂, each channel held within ±d̂, so that a firefly weighs no more than the
+/// light beside it) is fitted by least squares to the normals; each pixel gets the mean
+/// over the windows around it of their fits' slopes, times how far its normal is from its
+/// window's mean normal. Between 0 and the residual, widened by [`AWAY_ERRORS`] standard
+/// errors, and within ±d̂ per channel; 0 where an input is not finite. Exact for rows whose
+/// windows' windows (2r rows each side) lie within these rows or beyond the frame's edges;
+/// each sum in the same order whatever the rows are, so that bands of a frame get what the
+/// whole frame would, bit for bit.
+fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
+    let rows = planes[0].len() / w.max(1);
+    let finite = |v: f32| if v.is_finite() { v } else { 0.0 };
+    let d_hat = &planes[..3];
+    let residual: Vec<Vec<f32>> = (0..3)
+        .map(|c| {
+            let (d, noisy) = (planes[c], planes[3 + c]);
+            d.par_iter()
+                .zip(noisy)
+                .map(|(&d, &n)| if d.is_finite() { finite((n - d).clamp(-d.abs(), d.abs())) } else { 0.0 })
                 .collect()
         })
-    }
+        .collect();
+    let normal: Vec<Vec<f32>> = planes[6..9].iter().map(|p| p.par_iter().map(|&v| finite(v)).collect()).collect();
+    let mean = |plane: &[f32], count: &[f32]| -> Vec<f32> {
+        box_sums(plane, w, r, rows).into_par_iter().zip(count).map(|(s, n)| s / n).collect()
+    };
+    let product = |a: &[f32], b: &[f32]| -> Vec<f32> { a.par_iter().zip(b).map(|(a, b)| a * b).collect() };
+    let count = box_sums(&vec![1f32; w * rows], w, r, rows);
+    let g: Vec<Vec<f32>> = normal.iter().map(|p| mean(p, &count)).collect();
+    let e: Vec<Vec<f32>> = residual.iter().map(|p| mean(p, &count)).collect();
+    let variance: Vec<f32> = planes[9].par_iter().map(|&v| finite(v).max(0.0)).collect();
+    let noise = mean(&variance, &count);
+    // Second moments over each window: normals with normals (j ≤ k), normals with the
+    // residual.
+    let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean(&product(&normal[j], &normal[k]), &count)).collect();
+    let ge: Vec<Vec<f32>> = (0..9).map(|i| mean(&product(&normal[i / 3], &residual[i % 3]), &count)).collect();
+    // Each window's slopes: fit[j * 3 + c] is the residual's channel c per unit of
+    // normal component j.
+    let n = w * rows;
+    let fit = |i: usize| -> [f32; 9] {
+        let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
+        let mut c = [[0f64; 3]; 3];
+        for (p, &(j, k)) in PAIRS.iter().enumerate() {
+            let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
+            (c[j][k], c[k][j]) = (v, v);
+        }
+        let inverse = invert(&c);
+        let mut out = [0f32; 9];
+        for ch in 0..3 {
+            let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
+            for j in 0..3 {
+                out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
+            }
+        }
+        out
+    };
+    let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
+    drop((e, gg, ge));
+    // The mean over the windows around each pixel of their slopes, one plane at a time.
+    let slope: Vec<Vec<f32>> =
+        (0..9).map(|k| mean(&fits.par_iter().map(|f| f[k]).collect::<Vec<f32>>(), &count)).collect();
+    drop(fits);
+    std::array::from_fn(|ch| {
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let v: f32 = (0..3).map(|j| slope[j * 3 + ch][i] * (normal[j][i] - g[j][i])).sum();
+                let (e, away) = (residual[ch][i], AWAY_ERRORS * finite(variance[i].max(noise[i]).sqrt()));
+                let bound = d_hat[ch][i].abs();
+                if v.is_finite() && bound.is_finite() {
+                    v.clamp(e.min(0.0) - away, e.max(0.0) + away).clamp(-bound, bound)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    })
 }
 
 /// The normal components' pairs (j ≤ k) whose products a window's covariance needs.
