@@ -22,7 +22,7 @@
 #   KPCN_LOSS=L                                     # kpcn train --loss (default relative)
 #   KPCN_TRAIN_ARGS="..."                           # more `kpcn train` options, e.g.
 #                                                   # --fireflies
-#   KPCN_SIM=DIR                                    # also train on a simulator dataset
+#   KPCN_SIM="DIR..."                               # also train on simulator datasets
 #                                                   # (`kpcn dataset -o DIR`): the families
 #                                                   # the corpus lacks (light through a
 #                                                   # slit) keep their brightness
@@ -82,10 +82,10 @@ for line in open(sys.argv[1]):
                     n = split(ranges, r, "\n"); for (i = 1; i <= n; i++) { split(r[i], ab, " "); lo[i] = ab[1]; hi[i] = ab[2] } }
             { inside = 0; for (i = 1; i <= n; i++) if ($3 >= lo[i] && $3 < hi[i]) inside = 1 }
             inside && !($1 in skip) { $6 = rel "/" $6; $7 = rel "/" $7; print }'
-        if [ -n "${KPCN_SIM:-}" ]; then
-            sim=$(realpath --relative-to="$data" "$KPCN_SIM")
-            tail -n +2 "$KPCN_SIM/manifest.csv" | awk -F, -v rel="$sim" 'BEGIN { OFS = "," } { $6 = rel "/" $6; $7 = rel "/" $7; print }'
-        fi
+        for dir in ${KPCN_SIM:-}; do
+            sim=$(realpath --relative-to="$data" "$dir")
+            tail -n +2 "$dir/manifest.csv" | awk -F, -v rel="$sim" 'BEGIN { OFS = "," } { $6 = rel "/" $6; $7 = rel "/" $7; print }'
+        done
     } >"$data/manifest.partial"
     echo "train-cycles: left out for noisy references: ${noisy:-none}"
     mv "$data/manifest.partial" "$data/manifest.csv"

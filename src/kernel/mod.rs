@@ -11,6 +11,8 @@ pub mod ops;
 pub mod planes;
 mod simd;
 
+pub(crate) use simd::avx2_or_compiled;
+
 /// Logits are clamped to this magnitude (NaN → −it) so the softmax stays finite.
 pub(crate) const LOGIT_LIMIT: f32 = 1e30;
 

@@ -91,26 +91,28 @@ impl Planes {
 
     fn clamp_to_ranked_neighbour(&self, second: bool) -> Planes {
         let (w, h) = (self.w, self.h);
+        let interior = ranked_interior_avx2_or_not();
         Planes::by_rows(self.c, w, h, |c, y, dst| {
             let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| self.row(c, r));
-            for (x, d) in dst.iter_mut().enumerate() {
+            // The edge columns, whose neighbourhoods repeat them, one by one.
+            let edge = |x: usize| {
                 let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
-                let (mut most, mut next) = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+                let mut ranked = Ranked::new();
                 for (i, row) in rows.iter().enumerate() {
                     for (j, &cx) in cols.iter().enumerate() {
                         if (i, j) != (1, 1) {
-                            let v = row[cx];
-                            if v > most {
-                                next = most;
-                                most = v;
-                            } else {
-                                next = next.max(v);
-                            }
+                            ranked.add(row[cx]);
                         }
                     }
                 }
-                *d = rows[1][x].min(if second { next } else { most });
+                rows[1][x].min(ranked.pick(second))
+            };
+            if w < 3 {
+                (0..w).for_each(|x| dst[x] = edge(x));
+                return;
             }
+            (dst[0], dst[w - 1]) = (edge(0), edge(w - 1));
+            interior(rows, &mut dst[1..w - 1], second);
         })
     }
 
@@ -127,17 +129,27 @@ impl Planes {
         let (w, h) = (self.w, self.h);
         assert_eq!(variance.len(), w * h, "one variance per pixel");
         let err: Vec<f32> = variance.iter().map(|v| v.max(0.0).sqrt()).collect();
+        let settled_interior = settled_interior_avx2_or_not();
         Planes::by_rows(self.c, w, h, |c, y, dst| {
             let ys = [y.saturating_sub(1), y, (y + 1).min(h - 1)];
             let rows = ys.map(|r| self.row(c, r));
+            // Most pixels are not over twice their median: when five of the nine reach half
+            // of the value, so does the median, and nothing is sorted. Judged for the
+            // interior columns at once, the edges' (whose neighbourhoods repeat them) one by
+            // one.
+            let mut settled = vec![false; w];
+            if w >= 3 {
+                settled_interior(rows, &mut settled[1..w - 1]);
+            }
             for (x, d) in dst.iter_mut().enumerate() {
                 let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
                 let v = rows[1][x];
                 *d = v;
-                // Most pixels are not over twice their median: when five of the nine reach
-                // half of the value, so does the median, and nothing is sorted.
+                let edge = x == 0 || x == w - 1;
                 let half = (v - 0.01) * 0.5;
-                if rows.iter().flat_map(|r| cols.map(|cx| r[cx])).filter(|&n| n >= half).count() >= 5 {
+                if settled[x]
+                    || edge && rows.iter().flat_map(|r| cols.map(|cx| r[cx])).filter(|&n| n >= half).count() >= 5
+                {
                     continue;
                 }
                 let (mut n, mut e) = ([0f32; 9], [0f32; 9]);
@@ -321,6 +333,102 @@ impl Planes {
     }
 }
 
+/// The brightest and second-brightest of the values added (NaN ignored), −∞ until there
+/// are as many.
+#[derive(Clone, Copy)]
+struct Ranked {
+    most: f32,
+    next: f32,
+}
+
+impl Ranked {
+    #[inline(always)]
+    fn new() -> Ranked {
+        Ranked { most: f32::NEG_INFINITY, next: f32::NEG_INFINITY }
+    }
+
+    /// Selects rather than branches, so that a loop of it vectorises.
+    #[inline(always)]
+    fn add(&mut self, v: f32) {
+        let above = v > self.most;
+        self.next = if above { self.most } else { self.next.max(v) };
+        self.most = if above { v } else { self.most };
+    }
+
+    #[inline(always)]
+    fn pick(self, second: bool) -> f32 {
+        if second { self.next } else { self.most }
+    }
+}
+
+super::avx2_or_compiled!(
+    /// Clamps the interior of a row (`dst`: columns 1 to w − 2 of rows `rows`, the row and
+    /// those above and below it) to its neighbours' brightest, or second-brightest.
+    type RankedInterior;
+    fn ranked_interior_avx2_or_not() = ranked_interior(
+        rows: [&[f32]; 3],
+        dst: &mut [f32],
+        second: bool,
+    )
+);
+
+/// See [`RankedInterior`]. The eight neighbours in the order the edges visit them (row by
+/// row), so that a tie of −0 and +0 ranks alike.
+#[inline(always)]
+fn ranked_interior(rows: [&[f32]; 3], dst: &mut [f32], second: bool) {
+    let n = dst.len();
+    let nine = neighbourhood(rows, n);
+    for k in 0..n {
+        let mut ranked = Ranked::new();
+        for (i, neighbour) in nine.iter().enumerate() {
+            if i != 4 {
+                ranked.add(neighbour[k]);
+            }
+        }
+        dst[k] = nine[4][k].min(ranked.pick(second));
+    }
+}
+
+/// The 3×3 neighbourhood of columns 1 to `n` of `rows` (the row and those above and below
+/// it), row by row: for each of its nine places, the values there of every column in turn.
+#[inline(always)]
+fn neighbourhood([up, row, down]: [&[f32]; 3], n: usize) -> [&[f32]; 9] {
+    [
+        &up[..n],
+        &up[1..n + 1],
+        &up[2..n + 2],
+        &row[..n],
+        &row[1..n + 1],
+        &row[2..n + 2],
+        &down[..n],
+        &down[1..n + 1],
+        &down[2..n + 2],
+    ]
+}
+
+super::avx2_or_compiled!(
+    /// Judges the interior of a row (`settled`: columns 1 to w − 2 of rows `rows`, the row and
+    /// those above and below it) for [`Planes::clamp_insignificant`]: whether five of each
+    /// value's nine reach half of it (less 0.01), so that it is not over twice its median.
+    type SettledInterior;
+    fn settled_interior_avx2_or_not() = settled_interior(
+        rows: [&[f32]; 3],
+        settled: &mut [bool],
+    )
+);
+
+/// See [`SettledInterior`].
+#[inline(always)]
+fn settled_interior(rows: [&[f32]; 3], settled: &mut [bool]) {
+    let n = settled.len();
+    let nine = neighbourhood(rows, n);
+    for k in 0..n {
+        let half = (nine[4][k] - 0.01) * 0.5;
+        let reach: u32 = nine.iter().map(|v| u32::from(v[k] >= half)).sum();
+        settled[k] = reach >= 5;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -363,6 +471,72 @@ mod tests {
         want[2 * 6 + 1] = 0.5;
         want[6 + 4] = 8.0;
         assert_eq!(p.data, want);
+    }
+
+    #[test]
+    fn the_vectorised_rank_clamp_gives_the_branching_ones_bits() {
+        // The clamp as first written: a branch per neighbour.
+        let branching = |p: &Planes, second: bool| {
+            let (w, h) = (p.w, p.h);
+            let mut out = p.data.clone();
+            for y in 0..h {
+                let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| p.row(0, r));
+                for x in 0..w {
+                    let cols = [x.saturating_sub(1), x, (x + 1).min(w - 1)];
+                    let (mut most, mut next) = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+                    for (i, row) in rows.iter().enumerate() {
+                        for (j, &cx) in cols.iter().enumerate() {
+                            let v = row[cx];
+                            if (i, j) == (1, 1) {
+                            } else if v > most {
+                                (next, most) = (most, v);
+                            } else {
+                                next = next.max(v);
+                            }
+                        }
+                    }
+                    out[y * w + x] = rows[1][x].min(if second { next } else { most });
+                }
+            }
+            out
+        };
+        let value = |i: usize| match (i * 7919) % 23 {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            2 => f32::NEG_INFINITY,
+            3 => -0.0,
+            4 => 0.0,
+            k => (k as f32 - 12.0) * ((i * 104_729) % 97) as f32,
+        };
+        for (w, h) in [(1, 1), (2, 3), (3, 2), (17, 5), (40, 9)] {
+            let p = Planes::from_vec(1, w, h, (0..w * h).map(value).collect());
+            for (second, got) in [(false, p.clamp_to_neighbours()), (true, p.clamp_to_second_neighbour())] {
+                let bits = |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got.data), bits(&branching(&p, second)), "{w}×{h}, second: {second}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_significance_clamps_vectorised_test_judges_as_each_pixels_own() {
+        let value = |i: usize| match (i * 7919) % 19 {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            2 => -1.0,
+            k => ((i * 104_729) % 97) as f32 * 0.01 * k as f32,
+        };
+        let rows: [Vec<f32>; 3] = std::array::from_fn(|r| (0..40).map(|x| value(r * 40 + x)).collect());
+        let rows = rows.each_ref().map(|r| &r[..]);
+        for pass in [settled_interior, settled_interior_avx2_or_not()] {
+            let mut settled = vec![false; 38];
+            pass(rows, &mut settled);
+            for (x, &settled) in (1..39).zip(&settled) {
+                let half = (rows[1][x] - 0.01) * 0.5;
+                let reach = rows.iter().flat_map(|r| &r[x - 1..x + 2]).filter(|&&n| n >= half).count();
+                assert_eq!(settled, reach >= 5, "column {x}");
+            }
+            assert!(settled.iter().any(|&s| s) && settled.iter().any(|&s| !s));
+        }
     }
 
     #[test]

@@ -59,6 +59,39 @@ impl Isa {
     }
 }
 
+/// Defines the function pointer type `$ty` of `$plain` (a function written for the compiler
+/// to vectorise, `#[inline(always)]`, whose arguments are listed with their types), and
+/// `fn $pick() -> $ty`, which picks `$plain` compiled once more with AVX2 and FMA enabled
+/// where the CPU has them (twice the lanes of the baseline's SSE2), else `$plain` as
+/// compiled.
+macro_rules! avx2_or_compiled {
+    ($(#[$tmeta:meta])* type $ty:ident; fn $pick:ident() = $plain:ident($($arg:ident: $argty:ty),* $(,)?)) => {
+        $(#[$tmeta])*
+        type $ty = fn($($argty),*);
+
+        fn $pick() -> $ty {
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                /// `$plain` compiled for AVX2 and FMA.
+                ///
+                /// # Safety
+                /// AVX2 and FMA are available.
+                #[target_feature(enable = "avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                unsafe fn avx2($($arg: $argty),*) {
+                    $plain($($arg),*)
+                }
+                return |$($arg: $argty),*| {
+                    // SAFETY: AVX2 and FMA are available (detected).
+                    unsafe { avx2($($arg),*) }
+                };
+            }
+            $plain
+        }
+    };
+}
+pub(crate) use avx2_or_compiled;
+
 /// Cephes' single-precision `e^r` polynomial on `|r| ≤ ln 2 / 2`, highest power first, and
 /// `ln 2` split in two for the range reduction; shared by every instruction set.
 const EXP_POLY: [f32; 6] = [1.987_569_1e-4, 1.398_199_9e-3, 8.333_452e-3, 4.166_579_6e-2, 0.166_666_65, 0.5];

@@ -14,6 +14,7 @@
 use super::Architecture;
 use super::multiscale::{self, Backend};
 use super::pyramid::{Region, Weights, apply_rows, blend_scales};
+use crate::kernel::buffers;
 use crate::kernel::planes::Planes;
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -86,22 +87,22 @@ struct Store {
 }
 
 impl Store {
-    /// Rows `[lo, hi)`, copied into one block.
+    /// Rows `[lo, hi)`, copied into one block (appended, never zeroed first: the chunks
+    /// hold consecutive rows, and `from_vec` checks that every row came).
     fn rows(&self, lo: usize, hi: usize) -> Planes {
         let first = &self.chunks.front().expect("rows are held before they are read").1;
         let (c, w) = (first.c, first.w);
-        let mut out = Planes::zeros(c, w, hi - lo);
-        for (start, p) in &self.chunks {
-            let (a, b) = (lo.max(*start), hi.min(start + p.h));
-            for y in a..b {
-                for ch in 0..c {
-                    let src = &p.data[(ch * p.h + y - start) * w..][..w];
-                    out.data[(ch * (hi - lo) + y - lo) * w..][..w].copy_from_slice(src);
+        debug_assert!(self.chunks.front().is_some_and(|(s, _)| *s <= lo), "row {lo} was dropped");
+        let mut data = buffers::with_capacity(c * w * (hi - lo));
+        for ch in 0..c {
+            for (start, p) in &self.chunks {
+                let (a, b) = (lo.max(*start), hi.min(start + p.h));
+                if a < b {
+                    data.extend_from_slice(&p.data[(ch * p.h + a - start) * w..(ch * p.h + b - start) * w]);
                 }
             }
         }
-        debug_assert!(self.chunks.front().is_some_and(|(s, _)| *s <= lo), "row {lo} was dropped");
-        out
+        Planes::from_vec(c, w, hi - lo, data)
     }
 
     /// Drops the chunks wholly above row `row`.
@@ -468,12 +469,12 @@ fn crop(p: &Planes, a: usize, b: usize) -> Planes {
     if a == 0 && b == p.h {
         return p.clone();
     }
-    let (w, n) = (p.w, b - a);
-    let mut out = Planes::zeros(p.c, w, n);
+    let w = p.w;
+    let mut data = buffers::with_capacity(p.c * w * (b - a));
     for c in 0..p.c {
-        out.data[c * n * w..(c + 1) * n * w].copy_from_slice(&p.data[(c * p.h + a) * w..(c * p.h + b) * w]);
+        data.extend_from_slice(&p.data[(c * p.h + a) * w..(c * p.h + b) * w]);
     }
-    out
+    Planes::from_vec(p.c, w, b - a, data)
 }
 
 #[cfg(test)]

@@ -232,6 +232,21 @@ mod tests {
     use super::*;
     use crate::model::{Specular, Variances};
 
+    /// A value in [0, 1) drawn from pixel `i` and plane `k`.
+    pub(in crate::denoise::bounds) fn hash(i: usize, k: usize) -> f32 {
+        ((i * 7919 + k * 104_729) % 1009) as f32 / 1009.0
+    }
+
+    /// `v` at pixel `i` of plane `k`, but NaN, +∞ or −`v` at one pixel in `every` each.
+    pub(in crate::denoise::bounds) fn hostile(i: usize, k: usize, v: f32, every: usize) -> f32 {
+        match (i * 31 + k * 17) % every {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            2 => -v,
+            _ => v,
+        }
+    }
+
     #[test]
     fn a_streamed_band_is_read_with_the_context_rows_its_ceiling_needs() {
         let ladder = Architecture::ladder(crate::model::Quality::Fast);

@@ -1,8 +1,9 @@
 //! The specular branch's bound: how far it may move each pixel from its noisy value.
 
 use super::CEILING_RADIUS;
-use super::ceiling::alike_pixels;
+use super::ceiling::{alike_differences, columns};
 use crate::features::{Branch, Features, specular_of_log};
+use crate::kernel::avx2_or_compiled;
 use crate::kernel::planes::Planes;
 use crate::model::Architecture;
 use rayon::prelude::*;
@@ -82,9 +83,12 @@ fn delta_scale(noisy: [f32; 3]) -> f32 {
 
 /// The variance of s̃ over rows `rows` of the region `f` holds, each pixel's at least the
 /// median of its alike neighbours' (7×7) where their window is noisy ([`NOISY_WINDOW`],
-/// judged in radiance). `noisy` is the region's radiance. Scalar (two medians per pixel).
+/// judged in radiance). `noisy` is the region's radiance. The window is visited one offset
+/// at a time along the whole row, so that the test of which neighbours count vectorises;
+/// the two medians are per pixel.
 fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -> Vec<f32> {
     let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+    let side = 2 * r + 1;
     let variance = f.variance(Branch::Specular);
     // Each pixel's delta-method scale, once, on the rows the windows read.
     let read = rows.start.saturating_sub(r) * w..(rows.end + r).min(h) * w;
@@ -93,32 +97,108 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
         .par_iter_mut()
         .zip(read)
         .for_each(|(m, j)| *m = delta_scale(std::array::from_fn(|c| noisy.plane(c)[j])));
+    let (albedo, normal) = (&f.albedo, &f.normal);
+    let planes: [&[f32]; 8] =
+        [variance, &scale, &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
+    let pass = alike_pass_avx2_or_not();
     let mut out = variance[rows.start * w..rows.end * w].to_vec();
-    out.par_chunks_mut(w).zip(rows).for_each(|(out, y)| {
+    out.par_chunks_mut(w).zip(rows).for_each_init(WindowScratch::default, |s, (out, y)| {
+        s.radiance.clear();
+        s.radiance.resize(w, 0.0);
+        for chosen in [&mut s.variances, &mut s.radiance_variances] {
+            chosen.clear();
+            chosen.resize(side * side * w, f32::NAN);
+        }
+        for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+            for dx in -(r as isize)..=r as isize {
+                let Some((xs, j0)) = columns(&(0..w), dx, w) else { continue };
+                let offset = ((yy + r - y) * side + (dx + r as isize) as usize) * w;
+                let [_, _, a0i, a1i, a2i, n0i, n1i, n2i] = planes.map(|p| &p[y * w..][xs.clone()]);
+                let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
+                pass(
+                    [a0i, a1i, a2i, n0i, n1i, n2i],
+                    there,
+                    &mut s.radiance[xs.clone()],
+                    &mut s.variances[offset..][xs.clone()],
+                    &mut s.radiance_variances[offset..][xs],
+                );
+            }
+        }
         let (mut variances, mut radiance_variances) = (Vec::new(), Vec::new());
         for (x, out) in out.iter_mut().enumerate() {
-            let i = y * w + x;
             variances.clear();
             radiance_variances.clear();
-            let mut radiance = 0f32;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                let row = yy * w + x.saturating_sub(r)..yy * w + (x + r + 1).min(w);
-                for ((j, &v), &m) in row.clone().zip(&variance[row.clone()]).zip(&scale[row]) {
-                    if v >= 0.0 && v.is_finite() && alike_pixels(f, i, j) {
-                        variances.push(v);
-                        radiance_variances.push(v * m * m);
-                        radiance += m - 1.0;
-                    }
+            for o in (0..side * side).map(|o| o * w + x) {
+                if !s.variances[o].is_nan() {
+                    variances.push(s.variances[o]);
+                    radiance_variances.push(s.radiance_variances[o]);
                 }
             }
             let n = variances.len() as f32;
             // False where none is alike and finite (NaN).
-            if lower_median(&mut radiance_variances).sqrt() >= NOISY_WINDOW * radiance / n {
+            if lower_median(&mut radiance_variances).sqrt() >= NOISY_WINDOW * s.radiance[x] / n {
                 *out = out.max(lower_median(&mut variances));
             }
         }
     });
     out
+}
+
+/// Per worker, what [`variance_in_noisy_windows`] gathers over a row: per pixel, the sum
+/// of its counted neighbours' radiance; per offset of the window, the variance of s̃ of
+/// each pixel's neighbour there and the radiance's, where that neighbour is alike and its
+/// variance finite (else NaN).
+#[derive(Default)]
+struct WindowScratch {
+    radiance: Vec<f32>,
+    variances: Vec<f32>,
+    radiance_variances: Vec<f32>,
+}
+
+avx2_or_compiled!(
+    /// The test of [`variance_in_noisy_windows`] at one offset: for each pixel of `here`
+    /// (albedo RGB, normal XYZ) and its neighbour at the same place in `there` (variance of
+    /// s̃, delta-method scale, albedo RGB, normal XYZ), whether the neighbour counts (alike,
+    /// its variance finite): then its radiance is added to `radiance`, its variance goes into
+    /// `variances` and its radiance's into `radiance_variances`; else NaN goes into both.
+    type AlikePass;
+    fn alike_pass_avx2_or_not() = add_alike(
+        here: [&[f32]; 6],
+        there: [&[f32]; 8],
+        radiance: &mut [f32],
+        variances: &mut [f32],
+        radiance_variances: &mut [f32],
+    )
+);
+
+/// See [`AlikePass`]. Every row it writes is a parameter of its own, so that the compiler
+/// knows they do not overlap what is read.
+#[inline(always)]
+fn add_alike(
+    [a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 6],
+    [v, m, a0j, a1j, a2j, n0j, n1j, n2j]: [&[f32]; 8],
+    radiance: &mut [f32],
+    variances: &mut [f32],
+    radiance_variances: &mut [f32],
+) {
+    // Each slice cut to the same length, one by one: the compiler then drops the bounds
+    // checks and vectorises (slices cut through an array's `map` leave it scalar).
+    let n = radiance.len();
+    let (a0i, a1i, a2i, n0i, n1i, n2i) = (&a0i[..n], &a1i[..n], &a2i[..n], &n0i[..n], &n1i[..n], &n2i[..n]);
+    let (v, m, a0j, a1j, a2j, n0j, n1j, n2j) =
+        (&v[..n], &m[..n], &a0j[..n], &a1j[..n], &a2j[..n], &n0j[..n], &n1j[..n], &n2j[..n]);
+    let (variances, radiance_variances) = (&mut variances[..n], &mut radiance_variances[..n]);
+    for k in 0..n {
+        let alike = alike_differences(
+            [a0j[k] - a0i[k], a1j[k] - a1i[k], a2j[k] - a2i[k]],
+            [n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]],
+        );
+        let counts = (v[k] >= 0.0) & v[k].is_finite() & alike;
+        // Selected, not multiplied: a neighbour that does not count adds nothing.
+        radiance[k] += if counts { m[k] - 1.0 } else { 0.0 };
+        variances[k] = if counts { v[k] } else { f32::NAN };
+        radiance_variances[k] = if counts { v[k] * m[k] * m[k] } else { f32::NAN };
+    }
 }
 
 /// The lower median of `v` (reordered); NaN when empty. Lower, as chosen: where as many
@@ -133,6 +213,7 @@ fn lower_median(v: &mut [f32]) -> f32 {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
+    use crate::denoise::bounds::tests::{hash, hostile};
 
     /// A bound of 2 errors over pixels of noisy radiance `noisy`, standard error `error`
     /// and clamped value `clamped` (one value for all three channels).
@@ -144,6 +225,76 @@ pub(super) mod tests {
             noisy: std::array::from_fn(|_| noisy.to_vec()),
             variance: (0..n).map(|i| (error[i] / m(i)).powi(2)).collect(),
             clamped: std::array::from_fn(|_| clamped.to_vec()),
+        }
+    }
+
+    /// [`variance_in_noisy_windows`] pixel by pixel: a gather of each window, as the row
+    /// pass must equal bit for bit.
+    fn variance_pixel_by_pixel(f: &Features, noisy: &Planes, rows: Range<usize>) -> Vec<f32> {
+        let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
+        let variance = f.variance(Branch::Specular);
+        let scale: Vec<f32> = (0..w * h).map(|j| delta_scale(std::array::from_fn(|c| noisy.plane(c)[j]))).collect();
+        let alike = |i: usize, j: usize| {
+            let (a, n) = (&f.albedo, &f.normal);
+            alike_differences(std::array::from_fn(|c| a[c][j] - a[c][i]), std::array::from_fn(|c| n[c][j] - n[c][i]))
+        };
+        let mut out = variance[rows.start * w..rows.end * w].to_vec();
+        for (out, y) in out.chunks_mut(w).zip(rows) {
+            for (x, out) in out.iter_mut().enumerate() {
+                let i = y * w + x;
+                let (mut variances, mut radiance_variances, mut radiance) = (Vec::new(), Vec::new(), 0f32);
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for j in yy * w + x.saturating_sub(r)..yy * w + (x + r + 1).min(w) {
+                        let (v, m) = (variance[j], scale[j]);
+                        if v >= 0.0 && v.is_finite() && alike(i, j) {
+                            variances.push(v);
+                            radiance_variances.push(v * m * m);
+                            radiance += m - 1.0;
+                        }
+                    }
+                }
+                let n = variances.len() as f32;
+                if lower_median(&mut radiance_variances).sqrt() >= NOISY_WINDOW * radiance / n {
+                    *out = out.max(lower_median(&mut variances));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_row_pass_gives_the_pixel_by_pixel_variance_bit_for_bit() {
+        // Two surfaces, a glossy field of specks and smooth highlights, and hostile values
+        // scattered over every plane.
+        let (w, h) = (21, 13);
+        let hostile = |i: usize, k: usize, v: f32| hostile(i, k, v, 37);
+        let mut f = Features::new(&crate::features::tests::inputs(w, h, |_| 0.0));
+        // Hostile radiance only in the last rows: one infinite value makes its windows'
+        // mean infinite, and none of them noisy.
+        let s = |i: usize, c: usize| match (hash(i, 7) < 0.6, i / w > 10) {
+            (true, true) => hostile(i, c, 3.0 * hash(i, c)),
+            (true, false) => 3.0 * hash(i, c),
+            (false, _) => 0.0,
+        };
+        f.s_tilde = std::array::from_fn(|c| (0..w * h).map(|i| s(i, c).ln_1p()).collect());
+        f.s_variance = (0..w * h).map(|i| hostile(i, 3, if i % w < 10 { 0.3 } else { 0.001 } * hash(i, 4))).collect();
+        f.albedo = std::array::from_fn(|c| {
+            (0..w * h).map(|i| hostile(i, c + 11, if i / w < 6 { 0.5 } else { 0.8 + 0.01 * c as f32 })).collect()
+        });
+        f.normal =
+            std::array::from_fn(|c| (0..w * h).map(|i| hostile(i, c + 5, (i % w) as f32 * 0.05 * c as f32)).collect());
+        let radiance: Vec<f32> = f.s_tilde.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
+        let noisy = Planes::from_vec(3, w, h, radiance);
+        for rows in [0..h, 3..9] {
+            let want = variance_pixel_by_pixel(&f, &noisy, rows.clone());
+            let got = variance_in_noisy_windows(&f, &noisy, rows.clone());
+            assert_eq!(
+                got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            );
+            // Some windows are noisy: their pixels' variances were raised.
+            let own = &f.s_variance[rows.start * w..rows.end * w];
+            assert!(want.iter().zip(own).any(|(a, b)| a > b), "{rows:?}");
         }
     }
 

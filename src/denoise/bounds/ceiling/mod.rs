@@ -1,10 +1,14 @@
 //! The diffuse ceiling ([`DiffuseCeiling`]): the most the diffuse branch may brighten each
 //! pixel, from the noisy light of its similar neighbours.
 
+mod rows;
+
 use super::Bounds;
 use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
+pub(super) use rows::columns;
+use rows::{DenseScratch, Passes, Planes, SUMS, dense_row, sparse_runs, window_row_sums};
 use std::ops::Range;
 
 /// Half the side of the window a pixel's similar neighbours are sought in (7×7).
@@ -85,33 +89,35 @@ impl DiffuseCeiling {
             ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| spatial_ceiling_row(&window, y, out));
             return Some(DiffuseCeiling { ceiling, width: w });
         }
-        let add = add_similar_avx2_or_not();
-        let planes: [&[f32]; 11] =
+        let passes = Passes::avx2_or_not();
+        let planes: Planes =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
-        ceiling.par_chunks_mut(3 * w).zip(rows).for_each(|(out, y)| {
-            let (mut alike, mut variances, mut sparse) = (Vec::new(), Vec::new(), Vec::new());
-            for x in 0..w {
-                match window.dense_file_ceiling(x, y, &mut alike, &mut variances) {
-                    Some(ceiling) => (0..3).for_each(|c| out[c * w + x] = ceiling[c]),
-                    None => sparse.push(x),
+        ceiling.par_chunks_mut(3 * w).zip(rows).for_each_init(
+            || (Vec::new(), DenseScratch::default(), [(); SUMS].map(|_| vec![0f32; w])),
+            |(sparse, scratch, sums), (out, y)| {
+                sparse.clear();
+                dense_row(passes, &planes, w, h, y, errors, out, sparse, scratch);
+                // Where the 7×7 window is sparse, the 15×15 one, summed over the runs of
+                // such pixels.
+                for run in sparse_runs(sparse) {
+                    window_row_sums(passes, &planes, w, h, y, SPARSE_RADIUS, run, sums);
                 }
-            }
-            // Where the 7×7 window is sparse, the 15×15 one, summed (vectorised) on the
-            // columns from the first such pixel to the last.
-            let (Some(&first), Some(&last)) = (sparse.first(), sparse.last()) else { return };
-            let [count, variance, s0, s1, s2, hits] =
-                window_row_sums(add, &planes, w, h, y, SPARSE_RADIUS, first..last + 1);
-            for x in sparse {
-                if hits[x] < SPARSE_HITS {
-                    (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
-                } else {
-                    // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
-                    let count = count[x].max(1.0);
-                    let reach = errors * SPARSE_ERRORS * (variance[x] / count).max(0.0).sqrt();
-                    [&s0, &s1, &s2].into_iter().enumerate().for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
+                let [count, variance, s0, s1, s2, hits] = &*sums;
+                for &x in &*sparse {
+                    if hits[x] < SPARSE_HITS {
+                        (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
+                    } else {
+                        // The pixel is its own neighbour, so `count` ≥ 1 (finite features).
+                        let count = count[x].max(1.0);
+                        let reach = errors * SPARSE_ERRORS * (variance[x] / count).max(0.0).sqrt();
+                        [&s0, &s1, &s2]
+                            .into_iter()
+                            .enumerate()
+                            .for_each(|(c, s)| out[c * w + x] = s[x] / count + reach);
+                    }
                 }
-            }
-        });
+            },
+        );
         Some(DiffuseCeiling { ceiling, width: w })
     }
 
@@ -128,8 +134,8 @@ impl DiffuseCeiling {
     }
 }
 
-/// What the ceiling's per-pixel gathers read ([`spatial_ceiling_row`],
-/// [`Window::dense_file_ceiling`]): the region's features, the mean of d̃'s channels
+/// What the ceiling's per-pixel gathers on spatial variances read
+/// ([`spatial_ceiling_row`]): the region's features, the mean of d̃'s channels
 /// (on the rows the windows read) and the ceiling's errors.
 struct Window<'a> {
     width: usize,
@@ -144,8 +150,9 @@ struct Window<'a> {
 /// normal; of those, the ones whose mean d̃ is within 2 standard errors of the pixel's
 /// (√(2m)) are similar, and the ceiling is their mean d̃ plus `errors` × √m. Where under
 /// half the 7×7 window saw light, the 15×15 window's alike neighbours give it instead
-/// ([`Window::wide_ceiling`]). Not vectorised: a median per pixel, as on the file's
-/// variances ([`Window::dense_file_ceiling`]).
+/// ([`Window::wide_ceiling`]). Pixel by pixel: the median variance decides which
+/// neighbours are similar, so the window cannot be visited one offset at a time along the
+/// row, as on the file's variances ([`rows::dense_row`]).
 fn spatial_ceiling_row(win: &Window, y: usize, out: &mut [f32]) {
     let w = win.width;
     let (mut alike, mut variances) = (Vec::new(), Vec::new());
@@ -186,40 +193,6 @@ impl Window<'_> {
             }
         }
         (pixels, lit)
-    }
-
-    /// The ceiling of pixel (`x`, `y`) from its 7×7 window, on the file's variances: the
-    /// mean d̃ of its similar neighbours (alike in albedo and normal, mean d̃ within 2
-    /// errors of the pixel's, as [`add_similar`] judges them; the pixel always) plus
-    /// `errors` × the root of their median variance (finite ones; none: no margin).
-    /// `None` where under half the window saw light (sparse). `alike` and `variances` are
-    /// scratch.
-    fn dense_file_ceiling(
-        &self,
-        x: usize,
-        y: usize,
-        alike: &mut Vec<usize>,
-        variances: &mut Vec<f32>,
-    ) -> Option<[f32; 3]> {
-        let (i, var) = (y * self.width + x, &self.f.d_variance);
-        let (pixels, lit) = self.gather(x, y, CEILING_RADIUS, alike, variances);
-        if lit < LIT_SHARE * pixels {
-            return None;
-        }
-        variances.clear();
-        let (mut count, mut sum) = (0f32, [0f32; 3]);
-        for &j in &*alike {
-            let v = var[j];
-            if j == i || within_errors(self.mean[j] - self.mean[i], v + var[i]) {
-                count += 1.0;
-                (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
-                if v >= 0.0 && v.is_finite() {
-                    variances.push(v);
-                }
-            }
-        }
-        let reach = self.errors * median(variances).max(0.0).sqrt();
-        Some(sum.map(|s| s / count + reach))
     }
 
     /// The ceiling of pixel `i` from the similar ones among `alike` (see
@@ -266,18 +239,29 @@ fn within_errors(e: f32, variance: f32) -> bool {
 }
 
 /// Whether two pixels are alike in albedo and normal, from the largest difference of their
-/// albedos' channels and the squared distance of their normals. Branch-free, so that
-/// [`add_similar`] vectorises.
+/// albedos' channels and the squared distance of their normals. Branch-free, so that the
+/// row passes ([`rows`]) vectorise.
 #[inline(always)]
 fn alike_surfaces(albedo: f32, normal2: f32) -> bool {
     (albedo <= SIMILAR_ALBEDO) & (normal2 <= SIMILAR_NORMAL * SIMILAR_NORMAL)
 }
 
-/// Whether pixels `i` and `j` of `f` are alike in albedo and normal ([`alike_surfaces`]).
-pub(super) fn alike_pixels(f: &Features, i: usize, j: usize) -> bool {
+/// Whether pixels `i` and `j` of `f` are alike in albedo and normal.
+fn alike_pixels(f: &Features, i: usize, j: usize) -> bool {
     let (albedo, normal) = (&f.albedo, &f.normal);
-    let a = (0..3).map(|c| (albedo[c][j] - albedo[c][i]).abs()).fold(0f32, f32::max);
-    alike_surfaces(a, (0..3).map(|c| (normal[c][j] - normal[c][i]).powi(2)).sum())
+    alike_differences(
+        std::array::from_fn(|c| albedo[c][j] - albedo[c][i]),
+        std::array::from_fn(|c| normal[c][j] - normal[c][i]),
+    )
+}
+
+/// Whether two pixels whose albedos' channels differ by `albedo` and whose normals'
+/// components differ by `normal` are alike ([`alike_surfaces`]; a NaN difference of a
+/// channel counts as none). Branch-free, so that the row passes vectorise.
+#[inline(always)]
+pub(super) fn alike_differences(albedo: [f32; 3], normal: [f32; 3]) -> bool {
+    let largest = 0f32.max(albedo[0].abs()).max(albedo[1].abs()).max(albedo[2].abs());
+    alike_surfaces(largest, normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2])
 }
 
 /// The upper median of `v` (reordered); NaN when empty.
@@ -289,147 +273,100 @@ fn median(v: &mut [f32]) -> f32 {
     *v.select_nth_unstable_by(half, f32::total_cmp).1
 }
 
-/// How many sums [`window_row_sums`] keeps per pixel.
-const SUMS: usize = 6;
-
-/// The sums of [`DiffuseCeiling`]'s wide window, of half-side `r`, around each pixel of
-/// columns `xs` of row `y` (elsewhere 0), from `planes` (mean d̃, its variance, d̃ RGB,
-/// albedo RGB, normal XYZ) of a `w` × `h` region: count of similar neighbours, their
-/// variances and d̃ RGB, and the alike neighbours that saw light. One offset at a time
-/// along the row, so that the loop vectorises; each pixel's in the window's order.
-fn window_row_sums(
-    add: AddSimilar,
-    planes: &[&[f32]; 11],
-    w: usize,
-    h: usize,
-    y: usize,
-    r: usize,
-    xs: Range<usize>,
-) -> [Vec<f32>; SUMS] {
-    let mut acc = [(); SUMS].map(|_| vec![0f32; w]);
-    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-        for dx in -(r as isize)..=r as isize {
-            // The columns x of `xs` whose neighbour x + dx is inside the region.
-            let x0 = xs.start.max((-dx).max(0) as usize);
-            let x1 = xs.end.min((w as isize - dx.max(0)).max(0) as usize);
-            if x1 > x0 {
-                let (j0, j1) = ((x0 as isize + dx) as usize, (x1 as isize + dx) as usize);
-                let here = planes.map(|p| &p[y * w..][x0..x1]);
-                let there = planes.map(|p| &p[yy * w..][j0..j1]);
-                window_sums(add, &here, &there, &mut acc.each_mut().map(|a| &mut a[x0..x1]));
-            }
-        }
-    }
-    acc
-}
-
-/// Adds, for each pixel of `here` (planes: mean d̃, its variance, d̃ RGB, albedo RGB,
-/// normal XYZ), what its neighbour at the same place in `there` brings to [`DiffuseCeiling`]'s
-/// sums `acc` (see there), with `add` ([`add_similar_avx2_or_not`], chosen once per
-/// ceiling). Branch-free, so that it vectorises.
-fn window_sums(add: AddSimilar, here: &[&[f32]; 11], there: &[&[f32]; 11], acc: &mut [&mut [f32]; SUMS]) {
-    let n = here[0].len();
-    let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
-    let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
-    let [count, variance, s0, s1, s2, hits] = acc.each_mut().map(|a| &mut a[..n]);
-    add(
-        [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
-        mj,
-        vj,
-        [d0, d1, d2],
-        [a0j, a1j, a2j],
-        [n0j, n1j, n2j],
-        count,
-        variance,
-        [s0, s1, s2],
-        hits,
-    );
-}
-
-/// The similarity test and sums of [`window_sums`]: AVX2 where the CPU has it (twice as
-/// many lanes), else as compiled.
-type AddSimilar = fn(
-    [&[f32]; 8],
-    &[f32],
-    &[f32],
-    [&[f32]; 3],
-    [&[f32]; 3],
-    [&[f32]; 3],
-    &mut [f32],
-    &mut [f32],
-    [&mut [f32]; 3],
-    &mut [f32],
-);
-
-fn add_similar_avx2_or_not() -> AddSimilar {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        return |a, b, c, d, e, f, g, h, i, j| {
-            // SAFETY: AVX2 and FMA are available (detected).
-            unsafe { add_similar_avx2(a, b, c, d, e, f, g, h, i, j) }
-        };
-    }
-    add_similar
-}
-
-/// [`add_similar`] compiled for AVX2.
-///
-/// # Safety
-/// AVX2 and FMA are available.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn add_similar_avx2(
-    here: [&[f32]; 8],
-    mj: &[f32],
-    vj: &[f32],
-    d: [&[f32]; 3],
-    a: [&[f32]; 3],
-    n: [&[f32]; 3],
-    count: &mut [f32],
-    variance: &mut [f32],
-    s: [&mut [f32]; 3],
-    hits: &mut [f32],
-) {
-    add_similar(here, mj, vj, d, a, n, count, variance, s, hits)
-}
-
-/// The similarity test and sums of [`window_sums`]. Every row it writes is a parameter of
-/// its own: the compiler knows only those not to overlap what is read, and vectorises the
-/// loop (slices inside arrays leave it scalar, four times slower).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn add_similar(
-    [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 8],
-    mj: &[f32],
-    vj: &[f32],
-    [d0, d1, d2]: [&[f32]; 3],
-    [a0j, a1j, a2j]: [&[f32]; 3],
-    [n0j, n1j, n2j]: [&[f32]; 3],
-    count: &mut [f32],
-    variance: &mut [f32],
-    [s0, s1, s2]: [&mut [f32]; 3],
-    hits: &mut [f32],
-) {
-    for k in 0..count.len() {
-        let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
-        let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
-        let e = mj[k] - mi[k];
-        let alike = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2);
-        hits[k] += if alike & (mj[k] != 0.0) { 1.0 } else { 0.0 };
-        let similar = alike & within_errors(e, vj[k] + vi[k]);
-        let s = if similar { 1.0 } else { 0.0 };
-        count[k] += s;
-        variance[k] += s * vj[k];
-        s0[k] += s * d0[k];
-        s1[k] += s * d1[k];
-        s2[k] += s * d2[k];
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::denoise::bounds::tests::{hash, hostile};
+
+    impl Window<'_> {
+        /// The ceiling of pixel (`x`, `y`) from its 7×7 window, on the file's variances: the
+        /// mean d̃ of its similar neighbours (alike in albedo and normal, mean d̃ within 2
+        /// errors of the pixel's, as [`within_errors`] judges them; the pixel always) plus
+        /// `errors` × the root of their median variance (finite ones; none: no margin).
+        /// `None` where under half the window saw light (sparse). `alike` and `variances` are
+        /// scratch. Pixel by pixel: what [`rows::dense_row`] must equal bit for bit.
+        fn dense_file_ceiling(
+            &self,
+            x: usize,
+            y: usize,
+            alike: &mut Vec<usize>,
+            variances: &mut Vec<f32>,
+        ) -> Option<[f32; 3]> {
+            let (i, var) = (y * self.width + x, &self.f.d_variance);
+            let (pixels, lit) = self.gather(x, y, CEILING_RADIUS, alike, variances);
+            if lit < LIT_SHARE * pixels {
+                return None;
+            }
+            variances.clear();
+            let (mut count, mut sum) = (0f32, [0f32; 3]);
+            for &j in &*alike {
+                let v = var[j];
+                if j == i || within_errors(self.mean[j] - self.mean[i], v + var[i]) {
+                    count += 1.0;
+                    (0..3).for_each(|c| sum[c] += self.f.d_tilde[c][j]);
+                    if v >= 0.0 && v.is_finite() {
+                        variances.push(v);
+                    }
+                }
+            }
+            let reach = self.errors * median(variances).max(0.0).sqrt();
+            Some(sum.map(|s| s / count + reach))
+        }
+    }
+
+    #[test]
+    fn the_row_pass_gives_the_pixel_by_pixel_ceiling_bit_for_bit() {
+        // Two surfaces (albedo 0.5 and 0.8, normals bent by column), sparse light on the
+        // left and dense on the right, and hostile values scattered over every plane.
+        let (w, h) = (23, 11);
+        let hostile = |i: usize, k: usize, v: f32| hostile(i, k, v, 41);
+        let mut f = Features::new(&crate::features::tests::inputs(w, h, |_| 0.0));
+        let lit = |i: usize| i % w > 8 || hash(i, 9) < 0.3;
+        f.d_tilde = std::array::from_fn(|c| {
+            (0..w * h).map(|i| if lit(i) { hostile(i, c, 0.2 + hash(i, c)) } else { 0.0 }).collect()
+        });
+        f.d_variance = (0..w * h).map(|i| hostile(i, 3, 0.05 * hash(i, 4))).collect();
+        f.albedo = std::array::from_fn(|c| {
+            (0..w * h).map(|i| hostile(i, c + 11, if i / w < 5 { 0.5 } else { 0.8 + 0.01 * c as f32 })).collect()
+        });
+        f.normal =
+            std::array::from_fn(|c| (0..w * h).map(|i| hostile(i, c + 5, (i % w) as f32 * 0.05 * c as f32)).collect());
+        let mean: Vec<f32> = (0..w * h).map(|i| (f.d_tilde[0][i] + f.d_tilde[1][i] + f.d_tilde[2][i]) / 3.0).collect();
+        let window = Window { width: w, height: h, errors: 2.0, mean: &mean, f: &f };
+        let planes: Planes = [
+            &mean,
+            &f.d_variance,
+            &f.d_tilde[0],
+            &f.d_tilde[1],
+            &f.d_tilde[2],
+            &f.albedo[0],
+            &f.albedo[1],
+            &f.albedo[2],
+            &f.normal[0],
+            &f.normal[1],
+            &f.normal[2],
+        ];
+        let (mut alike, mut variances) = (Vec::new(), Vec::new());
+        let mut dense = 0;
+        for passes in [Passes::avx2_or_not(), Passes::compiled()] {
+            for y in 0..h {
+                let (mut out, mut sparse, mut scratch) = (vec![-1.0; 3 * w], Vec::new(), DenseScratch::default());
+                dense_row(passes, &planes, w, h, y, 2.0, &mut out, &mut sparse, &mut scratch);
+                for x in 0..w {
+                    let got = [0, 1, 2].map(|c| out[c * w + x].to_bits());
+                    match window.dense_file_ceiling(x, y, &mut alike, &mut variances) {
+                        Some(want) => {
+                            dense += 1;
+                            assert_eq!(got, want.map(f32::to_bits), "({x}, {y})");
+                        }
+                        None => assert!(sparse.contains(&x), "({x}, {y})"),
+                    }
+                }
+            }
+        }
+        // Both kinds of window occur.
+        assert!(dense > w * h / 2 && dense < 2 * w * h, "{dense}");
+    }
 
     /// The ceiling (2 errors) over rows `frame` of a 12-wide frame of one surface (albedo
     /// 0.5), whose pixel `i` (counted from the frame's top) shows d̃ `d(i)` with variance

@@ -1,0 +1,309 @@
+//! The diffuse ceiling's window passes over a row of pixels on the file's variances: the
+//! 7×7 window's similar neighbours ([`dense_row`]) and the 15×15 window's sums
+//! ([`window_row_sums`]). Each visits the window one offset at a time along the whole row,
+//! so that its inner loop vectorises, and adds up each pixel's neighbours in the window's
+//! order (rows, then columns), as a pixel-by-pixel gather would.
+
+use super::{CEILING_RADIUS, LIT_SHARE, alike_differences, alike_surfaces, median, within_errors};
+use crate::kernel::avx2_or_compiled;
+use std::ops::Range;
+
+/// The planes the passes read, of a `w` × `h` region: mean d̃ (of its channels), the
+/// variance of d̃, d̃ RGB, albedo RGB, normal XYZ.
+pub(super) type Planes<'a> = [&'a [f32]; 11];
+
+/// The passes' inner loops: AVX2 where the CPU has it (twice as many lanes), else as
+/// compiled. Chosen once per ceiling.
+#[derive(Clone, Copy)]
+pub(super) struct Passes {
+    similar: AddSimilar,
+    dense: AddDense,
+}
+
+impl Passes {
+    pub(super) fn avx2_or_not() -> Passes {
+        Passes { similar: add_similar_avx2_or_not(), dense: add_dense_avx2_or_not() }
+    }
+
+    /// The loops as compiled for the crate's target, whatever the CPU has.
+    #[cfg(test)]
+    pub(super) fn compiled() -> Passes {
+        Passes { similar: add_similar, dense: add_dense }
+    }
+}
+
+/// The columns of `xs` whose neighbour `dx` columns away is inside a region `w` wide, and
+/// the first such neighbour's column; `None` where there are none.
+pub(in crate::denoise::bounds) fn columns(xs: &Range<usize>, dx: isize, w: usize) -> Option<(Range<usize>, usize)> {
+    let x0 = xs.start.max((-dx).max(0) as usize);
+    let x1 = xs.end.min((w as isize - dx.max(0)).max(0) as usize);
+    (x1 > x0).then(|| (x0..x1, (x0 as isize + dx) as usize))
+}
+
+/// Per worker, what [`dense_row`] gathers over a row: per pixel, its 7×7 window's lit
+/// pixels, its similar neighbours and the sums of their d̃; per offset of the window, the
+/// variance of each pixel's neighbour there where that neighbour is similar and its
+/// variance finite (else NaN); and the scratch of one pixel's median.
+#[derive(Default)]
+pub(super) struct DenseScratch {
+    lit: Vec<f32>,
+    count: Vec<f32>,
+    sums: [Vec<f32>; 3],
+    chosen: Vec<f32>,
+    median: Vec<f32>,
+}
+
+/// The ceiling of each pixel of row `y` (`out`: `[c][x]`) from its 7×7 window, on the
+/// file's variances: the mean d̃ of its similar neighbours (alike in albedo and normal,
+/// mean d̃ within 2 errors of the pixel's; the pixel always, where it is alike itself)
+/// plus `errors` × the root of their median variance (finite ones; none: no margin). The
+/// pixels where under half the window saw light (sparse) go into `sparse` instead.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn dense_row(
+    passes: Passes,
+    planes: &Planes,
+    w: usize,
+    h: usize,
+    y: usize,
+    errors: f32,
+    out: &mut [f32],
+    sparse: &mut Vec<usize>,
+    s: &mut DenseScratch,
+) {
+    let r = CEILING_RADIUS;
+    let side = 2 * r + 1;
+    for plane in [&mut s.lit, &mut s.count].into_iter().chain(&mut s.sums) {
+        plane.clear();
+        plane.resize(w, 0.0);
+    }
+    s.chosen.clear();
+    s.chosen.resize(side * side * w, f32::NAN);
+    let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+    for yy in rows.clone() {
+        for dx in -(r as isize)..=r as isize {
+            let Some((xs, j0)) = columns(&(0..w), dx, w) else { continue };
+            let offset = (yy + r - y) * side + (dx + r as isize) as usize;
+            let here = planes.map(|p| &p[y * w..][xs.clone()]);
+            let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
+            let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here;
+            let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there;
+            let [s0, s1, s2] = s.sums.each_mut().map(|p| &mut p[xs.clone()]);
+            (passes.dense)(
+                [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
+                [mj, vj, d0, d1, d2],
+                [a0j, a1j, a2j],
+                [n0j, n1j, n2j],
+                yy == y && dx == 0,
+                &mut s.lit[xs.clone()],
+                &mut s.count[xs.clone()],
+                s0,
+                s1,
+                s2,
+                &mut s.chosen[offset * w..][xs],
+            );
+        }
+    }
+    for x in 0..w {
+        let pixels = (rows.len() * ((x + r + 1).min(w) - x.saturating_sub(r))) as f32;
+        if s.lit[x] < LIT_SHARE * pixels {
+            sparse.push(x);
+            continue;
+        }
+        s.median.clear();
+        s.median.extend((0..side * side).map(|o| s.chosen[o * w + x]).filter(|v| !v.is_nan()));
+        let reach = errors * median(&mut s.median).max(0.0).sqrt();
+        for c in 0..3 {
+            out[c * w + x] = s.sums[c][x] / s.count[x] + reach;
+        }
+    }
+}
+
+avx2_or_compiled!(
+    /// The similarity test of [`dense_row`] at one offset: for each pixel of `here` (mean d̃,
+    /// its variance, albedo RGB, normal XYZ) and its neighbour at the same place in `there`
+    /// (mean d̃, its variance, d̃ RGB), `albedo` and `normal`, whether the neighbour saw light
+    /// (into `lit`) and is similar (into `count`, its d̃ into `s0`…`s2`, its variance into
+    /// `chosen`, where finite; else NaN). `centre`: the neighbour is the pixel itself.
+    /// Branch-free, so that it vectorises.
+    type AddDense;
+    fn add_dense_avx2_or_not() = add_dense(
+        here: [&[f32]; 8],
+        there: [&[f32]; 5],
+        albedo: [&[f32]; 3],
+        normal: [&[f32]; 3],
+        centre: bool,
+        lit: &mut [f32],
+        count: &mut [f32],
+        s0: &mut [f32],
+        s1: &mut [f32],
+        s2: &mut [f32],
+        chosen: &mut [f32],
+    )
+);
+
+/// See [`AddDense`]. Every row it writes is a parameter of its own, so that the compiler
+/// knows they do not overlap what is read.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn add_dense(
+    [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 8],
+    [mj, vj, d0, d1, d2]: [&[f32]; 5],
+    [a0j, a1j, a2j]: [&[f32]; 3],
+    [n0j, n1j, n2j]: [&[f32]; 3],
+    centre: bool,
+    lit: &mut [f32],
+    count: &mut [f32],
+    s0: &mut [f32],
+    s1: &mut [f32],
+    s2: &mut [f32],
+    chosen: &mut [f32],
+) {
+    let n = count.len();
+    let (mi, vi, a0i, a1i, a2i, n0i, n1i, n2i) =
+        (&mi[..n], &vi[..n], &a0i[..n], &a1i[..n], &a2i[..n], &n0i[..n], &n1i[..n], &n2i[..n]);
+    let (mj, vj, d0, d1, d2) = (&mj[..n], &vj[..n], &d0[..n], &d1[..n], &d2[..n]);
+    let (a0j, a1j, a2j, n0j, n1j, n2j) = (&a0j[..n], &a1j[..n], &a2j[..n], &n0j[..n], &n1j[..n], &n2j[..n]);
+    let (lit, s0, s1, s2, chosen) = (&mut lit[..n], &mut s0[..n], &mut s1[..n], &mut s2[..n], &mut chosen[..n]);
+    for k in 0..n {
+        let alike = alike_differences(
+            [a0j[k] - a0i[k], a1j[k] - a1i[k], a2j[k] - a2i[k]],
+            [n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]],
+        );
+        lit[k] += if mj[k] != 0.0 { 1.0 } else { 0.0 };
+        let similar = alike & (centre | within_errors(mj[k] - mi[k], vj[k] + vi[k]));
+        count[k] += if similar { 1.0 } else { 0.0 };
+        // Selected, not multiplied: a neighbour that is not similar adds nothing, even an
+        // infinite one.
+        s0[k] += if similar { d0[k] } else { 0.0 };
+        s1[k] += if similar { d1[k] } else { 0.0 };
+        s2[k] += if similar { d2[k] } else { 0.0 };
+        let v = vj[k];
+        chosen[k] = if similar & (v >= 0.0) & v.is_finite() { v } else { f32::NAN };
+    }
+}
+
+/// How many sums [`window_row_sums`] keeps per pixel.
+pub(super) const SUMS: usize = 6;
+
+/// The sums of the ceiling's wide window, of half-side `r`, around each pixel of columns
+/// `xs` of row `y`, from `planes` of a `w` × `h` region, into those columns of `acc` (each
+/// `w` long; the other columns are left as they are): count of similar neighbours, their
+/// variances and d̃ RGB, and the alike neighbours that saw light.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn window_row_sums(
+    passes: Passes,
+    planes: &Planes,
+    w: usize,
+    h: usize,
+    y: usize,
+    r: usize,
+    xs: Range<usize>,
+    acc: &mut [Vec<f32>; SUMS],
+) {
+    acc.iter_mut().for_each(|a| a[xs.clone()].fill(0.0));
+    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+        for dx in -(r as isize)..=r as isize {
+            let Some((xs, j0)) = columns(&xs, dx, w) else { continue };
+            let here = planes.map(|p| &p[y * w..][xs.clone()]);
+            let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
+            window_sums(passes.similar, &here, &there, &mut acc.each_mut().map(|a| &mut a[xs.clone()]));
+        }
+    }
+}
+
+/// The runs of `sparse` (columns, ascending) to sum the wide window over: consecutive
+/// columns and those within a short gap of each other together, so that a row with a few
+/// sparse pixels at each end is not summed from one end to the other.
+pub(super) fn sparse_runs(sparse: &[usize]) -> impl Iterator<Item = Range<usize>> + '_ {
+    // Below this gap, one run costs less than two calls' set-up.
+    const GAP: usize = 16;
+    let ends = sparse.windows(2).filter(|p| p[1] - p[0] > GAP).map(|p| (p[0] + 1, p[1]));
+    let starts = sparse.first().copied().into_iter().chain(ends.clone().map(|(_, start)| start));
+    let stops = ends.map(|(stop, _)| stop).chain(sparse.last().map(|&x| x + 1));
+    starts.zip(stops).map(|(a, b)| a..b)
+}
+
+/// Adds, for each pixel of `here`, what its neighbour at the same place in `there` brings
+/// to [`window_row_sums`]'s sums `acc`, with `add`. Branch-free, so that it vectorises.
+fn window_sums(add: AddSimilar, here: &Planes, there: &Planes, acc: &mut [&mut [f32]; SUMS]) {
+    let n = here[0].len();
+    let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here.map(|p| &p[..n]);
+    let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there.map(|p| &p[..n]);
+    let [count, variance, s0, s1, s2, hits] = acc.each_mut().map(|a| &mut a[..n]);
+    add(
+        [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
+        mj,
+        vj,
+        [d0, d1, d2],
+        [a0j, a1j, a2j],
+        [n0j, n1j, n2j],
+        count,
+        variance,
+        [s0, s1, s2],
+        hits,
+    );
+}
+
+avx2_or_compiled!(
+    /// The similarity test and sums of [`window_sums`].
+    type AddSimilar;
+    fn add_similar_avx2_or_not() = add_similar(
+        here: [&[f32]; 8],
+        mj: &[f32],
+        vj: &[f32],
+        d: [&[f32]; 3],
+        a: [&[f32]; 3],
+        n: [&[f32]; 3],
+        count: &mut [f32],
+        variance: &mut [f32],
+        s: [&mut [f32]; 3],
+        hits: &mut [f32],
+    )
+);
+
+/// The similarity test and sums of [`window_sums`]. Every row it writes is a parameter of
+/// its own: the compiler knows only those not to overlap what is read, and vectorises the
+/// loop (slices inside arrays leave it scalar, four times slower).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn add_similar(
+    [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 8],
+    mj: &[f32],
+    vj: &[f32],
+    [d0, d1, d2]: [&[f32]; 3],
+    [a0j, a1j, a2j]: [&[f32]; 3],
+    [n0j, n1j, n2j]: [&[f32]; 3],
+    count: &mut [f32],
+    variance: &mut [f32],
+    [s0, s1, s2]: [&mut [f32]; 3],
+    hits: &mut [f32],
+) {
+    for k in 0..count.len() {
+        let albedo = (a0j[k] - a0i[k]).abs().max((a1j[k] - a1i[k]).abs()).max((a2j[k] - a2i[k]).abs());
+        let (e0, e1, e2) = (n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]);
+        let e = mj[k] - mi[k];
+        let alike = alike_surfaces(albedo, e0 * e0 + e1 * e1 + e2 * e2);
+        hits[k] += if alike & (mj[k] != 0.0) { 1.0 } else { 0.0 };
+        let similar = alike & within_errors(e, vj[k] + vi[k]);
+        let s = if similar { 1.0 } else { 0.0 };
+        count[k] += s;
+        variance[k] += s * vj[k];
+        s0[k] += s * d0[k];
+        s1[k] += s * d1[k];
+        s2[k] += s * d2[k];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sparse_pixels_are_summed_in_runs_split_at_long_gaps() {
+        let runs = |sparse: &[usize]| sparse_runs(sparse).collect::<Vec<_>>();
+        assert_eq!(runs(&[]), Vec::<Range<usize>>::new());
+        assert_eq!(runs(&[5]), vec![5..6]);
+        // Gaps of up to 16 columns stay in one run; a longer one splits it.
+        assert_eq!(runs(&[0, 1, 17, 40, 41, 300]), [0..18, 40..42, 300..301]);
+    }
+}
