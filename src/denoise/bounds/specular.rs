@@ -1,7 +1,7 @@
 //! The specular branch's bound: how far it may move each pixel from its noisy value.
 
 use super::CEILING_RADIUS;
-use super::ceiling::{alike_differences, columns};
+use super::ceiling::{alike_differences, window_offsets};
 use crate::features::{Branch, Features, specular_of_log};
 use crate::kernel::avx2_or_compiled;
 use crate::kernel::planes::Planes;
@@ -109,21 +109,17 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
             chosen.clear();
             chosen.resize(side * side * w, f32::NAN);
         }
-        for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-            for dx in -(r as isize)..=r as isize {
-                let Some((xs, j0)) = columns(&(0..w), dx, w) else { continue };
-                let offset = ((yy + r - y) * side + (dx + r as isize) as usize) * w;
-                let [_, _, a0i, a1i, a2i, n0i, n1i, n2i] = planes.map(|p| &p[y * w..][xs.clone()]);
-                let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
-                pass(
-                    [a0i, a1i, a2i, n0i, n1i, n2i],
-                    there,
-                    &mut s.radiance[xs.clone()],
-                    &mut s.variances[offset..][xs.clone()],
-                    &mut s.radiance_variances[offset..][xs],
-                );
-            }
-        }
+        window_offsets((w, h), y, r, 0..w, |offset, xs, there| {
+            let [_, _, a0i, a1i, a2i, n0i, n1i, n2i] = planes.map(|p| &p[y * w..][xs.clone()]);
+            let there = planes.map(|p| &p[there..][..xs.len()]);
+            pass(
+                [a0i, a1i, a2i, n0i, n1i, n2i],
+                there,
+                &mut s.radiance[xs.clone()],
+                &mut s.variances[offset * w..][xs.clone()],
+                &mut s.radiance_variances[offset * w..][xs],
+            );
+        });
         let (mut variances, mut radiance_variances) = (Vec::new(), Vec::new());
         for (x, out) in out.iter_mut().enumerate() {
             variances.clear();

@@ -7,7 +7,7 @@ use super::Bounds;
 use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
-pub(super) use rows::columns;
+pub(super) use rows::window_offsets;
 use rows::{DenseScratch, Passes, Planes, SUMS, dense_row, sparse_runs, window_row_sums};
 use std::ops::Range;
 

@@ -32,12 +32,29 @@ impl Passes {
     }
 }
 
-/// The columns of `xs` whose neighbour `dx` columns away is inside a region `w` wide, and
-/// the first such neighbour's column; `None` where there are none.
-pub(in crate::denoise::bounds) fn columns(xs: &Range<usize>, dx: isize, w: usize) -> Option<(Range<usize>, usize)> {
-    let x0 = xs.start.max((-dx).max(0) as usize);
-    let x1 = xs.end.min((w as isize - dx.max(0)).max(0) as usize);
-    (x1 > x0).then(|| (x0..x1, (x0 as isize + dx) as usize))
+/// Visits the window of half-side `r` around each pixel of columns `xs` of row `y` of a
+/// `w` × `h` region one offset at a time, in the window's order (rows, then columns):
+/// `visit(offset, xs, there)` with the offset's index in that order, the columns of `xs`
+/// whose neighbour there is inside the region, and the index of the first such neighbour
+/// in the region's planes (the others follow it).
+pub(in crate::denoise::bounds) fn window_offsets(
+    (w, h): (usize, usize),
+    y: usize,
+    r: usize,
+    xs: Range<usize>,
+    mut visit: impl FnMut(usize, Range<usize>, usize),
+) {
+    let side = 2 * r + 1;
+    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+        for dx in -(r as isize)..=r as isize {
+            let x0 = xs.start.max((-dx).max(0) as usize);
+            let x1 = xs.end.min((w as isize - dx.max(0)).max(0) as usize);
+            if x1 > x0 {
+                let offset = (yy + r - y) * side + (dx + r as isize) as usize;
+                visit(offset, x0..x1, yy * w + (x0 as isize + dx) as usize);
+            }
+        }
+    }
 }
 
 /// Per worker, what [`dense_row`] gathers over a row: per pixel, its 7×7 window's lit
@@ -78,31 +95,28 @@ pub(super) fn dense_row(
     }
     s.chosen.clear();
     s.chosen.resize(side * side * w, f32::NAN);
+    let centre = side * side / 2;
+    window_offsets((w, h), y, r, 0..w, |offset, xs, there| {
+        let here = planes.map(|p| &p[y * w..][xs.clone()]);
+        let there = planes.map(|p| &p[there..][..xs.len()]);
+        let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here;
+        let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there;
+        let [s0, s1, s2] = s.sums.each_mut().map(|p| &mut p[xs.clone()]);
+        (passes.dense)(
+            [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
+            [mj, vj, d0, d1, d2],
+            [a0j, a1j, a2j],
+            [n0j, n1j, n2j],
+            offset == centre,
+            &mut s.lit[xs.clone()],
+            &mut s.count[xs.clone()],
+            s0,
+            s1,
+            s2,
+            &mut s.chosen[offset * w..][xs],
+        );
+    });
     let rows = y.saturating_sub(r)..(y + r + 1).min(h);
-    for yy in rows.clone() {
-        for dx in -(r as isize)..=r as isize {
-            let Some((xs, j0)) = columns(&(0..w), dx, w) else { continue };
-            let offset = (yy + r - y) * side + (dx + r as isize) as usize;
-            let here = planes.map(|p| &p[y * w..][xs.clone()]);
-            let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
-            let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here;
-            let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there;
-            let [s0, s1, s2] = s.sums.each_mut().map(|p| &mut p[xs.clone()]);
-            (passes.dense)(
-                [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
-                [mj, vj, d0, d1, d2],
-                [a0j, a1j, a2j],
-                [n0j, n1j, n2j],
-                yy == y && dx == 0,
-                &mut s.lit[xs.clone()],
-                &mut s.count[xs.clone()],
-                s0,
-                s1,
-                s2,
-                &mut s.chosen[offset * w..][xs],
-            );
-        }
-    }
     for x in 0..w {
         let pixels = (rows.len() * ((x + r + 1).min(w) - x.saturating_sub(r))) as f32;
         if s.lit[x] < LIT_SHARE * pixels {
@@ -201,14 +215,11 @@ pub(super) fn window_row_sums(
     acc: &mut [Vec<f32>; SUMS],
 ) {
     acc.iter_mut().for_each(|a| a[xs.clone()].fill(0.0));
-    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-        for dx in -(r as isize)..=r as isize {
-            let Some((xs, j0)) = columns(&xs, dx, w) else { continue };
-            let here = planes.map(|p| &p[y * w..][xs.clone()]);
-            let there = planes.map(|p| &p[yy * w + j0..][..xs.len()]);
-            window_sums(passes.similar, &here, &there, &mut acc.each_mut().map(|a| &mut a[xs.clone()]));
-        }
-    }
+    window_offsets((w, h), y, r, xs, |_, xs, there| {
+        let here = planes.map(|p| &p[y * w..][xs.clone()]);
+        let there = planes.map(|p| &p[there..][..xs.len()]);
+        window_sums(passes.similar, &here, &there, &mut acc.each_mut().map(|a| &mut a[xs.clone()]));
+    });
 }
 
 /// The runs of `sparse` (columns, ascending) to sum the wide window over: consecutive
