@@ -312,24 +312,24 @@ fn quality_names_a_rung_of_the_ladder_and_refuses_a_model_beside_it() {
 
 #[test]
 fn model_bound_rewrites_each_branchs_bound_and_info_shows_them() {
-    // The shipped `fast` is unbounded; bounded, then lifted again (`kpcn model info` prints
+    // The shipped `high` is unbounded; bounded, then lifted again (`kpcn model info` prints
     // the bounds either way; `model::tests` checks that the weights stay bit for bit).
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let (bounded, both, lifted) =
-        (path("fast-bounded.safetensors"), path("fast-both.safetensors"), path("lifted.safetensors"));
+        (path("high-bounded.safetensors"), path("high-both.safetensors"), path("lifted.safetensors"));
     let bound = |model: &str, branch: &str, errors: &str, out: &str| {
         let o = kpcn(&["model", "bound", model, "--branch", branch, "--errors", errors, "-o", out]);
         assert!(o.status.success(), "{}", text(&o.stderr));
         text(&kpcn(&["model", "info", out]).stdout)
     };
-    let info = bound("fast", "specular", "3", &bounded);
+    let info = bound("high", "specular", "3", &bounded);
     assert!(info.contains("moved at most 3 standard errors") && info.contains("diffuse       unbounded"), "{info}");
     let info = bound(&bounded, "diffuse", "2", &both);
     assert!(info.contains("moved at most 3") && info.contains("brightened at most 2 standard errors"), "{info}");
     let info = bound(&both, "specular", "0", &lifted);
     assert!(info.contains("specular      unbounded") && info.contains("brightened at most 2"), "{info}");
-    let out = kpcn(&["model", "bound", "fast", "--errors", "2", "-o", "x.safetensors"]);
+    let out = kpcn(&["model", "bound", "high", "--errors", "2", "-o", "x.safetensors"]);
     assert!(!out.status.success() && text(&out.stderr).contains("--branch"), "{}", text(&out.stderr));
     let out = kpcn(&[
         "model",

@@ -38,8 +38,8 @@ macro_rules! shipped {
 /// Every shipped model, the default first, then the rest of the quality ladder.
 pub static SHIPPED: [Shipped; 6] = [
     shipped!(Quality::Balanced.name(), "balanced", "the default: the quality ladder's middle rung, a 5-level U-Net"),
-    shipped!(Quality::Fast.name(), "fast", "the ladder's narrowest rung: about 0.6× balanced's time"),
-    shipped!(Quality::High.name(), "high", "the ladder's widest rung: about 1.6× balanced's time"),
+    shipped!(Quality::Fast.name(), "fast", "the ladder's narrowest rung: a third of balanced's FLOPs"),
+    shipped!(Quality::High.name(), "high", "the ladder's widest rung: twice balanced's FLOPs"),
     shipped!("spatial", "spatial", "compact's network on spatial variance estimates: files without variances"),
     shipped!("compact", "compact", "a 3-level U-Net: the shortest reach, so the least memory per band"),
     shipped!("small-flat", "small-flat", "the flat KPCN, every layer at full resolution: slower"),
