@@ -24,11 +24,7 @@ work=${3:?$usage}
 shift 3
 [ $# -gt 0 ] || { echo "data-curve: name at least one share N (every N-th training scene)" >&2; exit 2; }
 [ -f "$snapshot/manifest.csv" ] || { echo "data-curve: $snapshot/manifest.csv: no such file" >&2; exit 1; }
-cargo build --release --locked --quiet
-mkdir -p "$work"
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
+scripts/pinned-kpcn.sh "$work" >/dev/null
 for n in "$@"; do
     dir=$work/share-$n
     [ -f "$dir/run/model.safetensors" ] && { echo "$dir/run: done"; continue; }

@@ -50,11 +50,7 @@ ranges=$(tr ',' '\n' <<<"$scenes" | awk -F- 'NF == 2 { print $1, $2; next } NF =
 work=${KPCN_WORK:-train-cycles/ft}
 mkdir -p "$work"
 
-cargo build --release --locked --quiet
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
-kpcn=$work/kpcn
+kpcn=$(scripts/pinned-kpcn.sh "$work")
 
 data=$work/data
 if [ ! -f "$data/manifest.csv" ]; then

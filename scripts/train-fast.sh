@@ -38,11 +38,7 @@ corpus=${1:?usage: scripts/train-fast.sh CORPUS}
 work=${KPCN_WORK:-train-fast}
 mkdir -p "$work"
 
-cargo build --release --locked --quiet
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
-kpcn=$work/kpcn
+kpcn=$(scripts/pinned-kpcn.sh "$work")
 
 KPCN_WORK=$work/ladder scripts/train-ladder.sh fast
 steps=$work/fast-steps.safetensors

@@ -25,12 +25,8 @@ rungs=("$@")
 [ ${#rungs[@]} -gt 0 ] || rungs=(balanced fast high)
 mkdir -p "$work"
 
-cargo build --release --locked --quiet
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
 variances=${KPCN_VARIANCES:-file}
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
-kpcn=$work/kpcn
+kpcn=$(scripts/pinned-kpcn.sh "$work")
 
 if [ ! -f "$work/data/manifest.csv" ]; then
     rm -rf "$work/data.partial"

@@ -45,11 +45,7 @@ model=${3:-balanced}
 work=${KPCN_WORK:-train-specular}
 mkdir -p "$work"
 
-cargo build --release --locked --quiet
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
-kpcn=$work/kpcn
+kpcn=$(scripts/pinned-kpcn.sh "$work")
 
 sim=(--spp 4,16,64 --resolution 320x180 --count 3 --first-seed 20 -o "$work/sim" -q)
 nice -n 19 "$kpcn" dataset --families cornell,corridor,courtyard,dof,firefly,glass,interior,product --reference-spp 512 "${sim[@]}"

@@ -62,11 +62,7 @@ else
     init=$ladder/$rung/model.safetensors
 fi
 
-cargo build --release --locked --quiet
-# A copy, so that rebuilding the crate during a long run does not swap the binary under it.
-cp target/release/kpcn "$work/kpcn.$$"
-mv "$work/kpcn.$$" "$work/kpcn"
-kpcn=$work/kpcn
+kpcn=$(scripts/pinned-kpcn.sh "$work")
 
 data=(--spp 2,4,16,64 --resolution 320x180 -o "$work/data" -q)
 nice -n 19 "$kpcn" dataset --count 8 --first-seed 6 --reference-spp 512 "${data[@]}"
