@@ -57,15 +57,15 @@ const MODELS: [&str; 4] = ["compact", "fast", "balanced", "high"];
 /// → 0.775 and 0.240 → 0.264, while on our 320×180 simulator and Cycles frames it falls
 /// (BENCHMARKS.md, "The diffuse detail restored"). Then `fast` was retrained (2026-12-06,
 /// twenty-fourth session: `balanced`'s four steps after the network, and fine-tuned on
-/// our Cycles corpus, scripts/train-fast.sh): its slit room keeps far more
-/// light (−9.33 / −17.63 %, from −27.86 / −22.49), firefly at 4 spp −8.25 % (−12.05), while
-/// interior (−6.67 / −3.39 %, from −3.72 / −2.03), corridor (−4.65 / −2.72 %, from −2.80 /
-/// −1.78) and cornell, product and dof (up to 1 point) come out darker; the `l1` segment
-/// alone left interior at −7.59 % and corridor at −8.08 %, the `relative` one after it
-/// brought them back this far. On our Cycles corpus it keeps more light than `balanced` on
-/// the validation split (0.89 against 0.72 of the noisy mean at 4 spp) and a little less on
-/// 21 scenes no run trained on (0.92 against 0.94; models/README.md). A frame not listed must stay within 1 %, and a
-/// listed one must not move further.
+/// our Cycles corpus, scripts/train-fast.sh): its slit room keeps far more light (−9.33 /
+/// −17.63 %, from −27.86 / −22.49), firefly at 4 spp −8.25 % (−12.05), while interior
+/// (−6.67 / −3.39 %, from −3.72 / −2.03), corridor (−4.65 / −2.72 %, from −2.80 / −1.78)
+/// and cornell, product and dof (up to 1 point) come out darker; the `l1` segment alone
+/// left interior at −7.59 % and corridor at −8.08 %, the `relative` one after it brought
+/// them back this far. On our Cycles corpus it keeps more light than `balanced` on the
+/// validation split (0.89 against 0.72 of the noisy mean at 4 spp) and a little less on 21
+/// scenes no run trained on (0.92 against 0.94; models/README.md). A frame not listed must
+/// stay within 1 %, and a listed one must not move further.
 const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("compact", "cornell", 4, 0.017),
     ("compact", "interior", 4, 0.023),
