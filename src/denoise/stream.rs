@@ -113,6 +113,13 @@ impl<'a> FrameStream<'a> {
     /// band is complete once the next one is too (or it is the last): the next band's
     /// first rows send it light and detail.
     pub(super) fn ready(&mut self) -> Option<(Range<usize>, Denoised)> {
+        // On the denoiser's threads: what finishes a band runs pixel by pixel in parallel.
+        let denoiser = self.denoiser;
+        denoiser.pool.install(|| self.finish_front())
+    }
+
+    /// [`FrameStream::ready`], on the calling threads.
+    fn finish_front(&mut self) -> Option<(Range<usize>, Denoised)> {
         let w = self.width;
         let rows = self.out[0][0].len().min(self.out[1][0].len()) / w.max(1);
         let band = self.pending.front()?.rows.clone();

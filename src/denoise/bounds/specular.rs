@@ -84,8 +84,9 @@ fn delta_scale(noisy: [f32; 3]) -> f32 {
 /// The variance of s̃ over rows `rows` of the region `f` holds, each pixel's at least the
 /// median of its alike neighbours' (7×7) where their window is noisy ([`NOISY_WINDOW`],
 /// judged in radiance). `noisy` is the region's radiance. The window is visited one offset
-/// at a time along the whole row, so that the test of which neighbours count vectorises;
-/// the two medians are per pixel.
+/// at a time along the whole row, so that the test of which neighbours count vectorises,
+/// and so is whether a window is noisy, by counting ([`median_root_reaches`]); only a noisy
+/// window's median variance is found pixel by pixel.
 fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -> Vec<f32> {
     let (w, h, r) = (f.width, f.height, CEILING_RADIUS);
     let side = 2 * r + 1;
@@ -100,11 +101,13 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
     let (albedo, normal) = (&f.albedo, &f.normal);
     let planes: [&[f32]; 8] =
         [variance, &scale, &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
-    let pass = alike_pass_avx2_or_not();
+    let (pass, ranks) = (alike_pass_avx2_or_not(), ranks_avx2_or_not());
     let mut out = variance[rows.start * w..rows.end * w].to_vec();
     out.par_chunks_mut(w).zip(rows).for_each_init(WindowScratch::default, |s, (out, y)| {
-        s.radiance.clear();
-        s.radiance.resize(w, 0.0);
+        for sums in [&mut s.radiance, &mut s.count, &mut s.nan_first, &mut s.numbers, &mut s.short] {
+            sums.clear();
+            sums.resize(w, 0.0);
+        }
         for chosen in [&mut s.variances, &mut s.radiance_variances] {
             chosen.clear();
             chosen.resize(side * side * w, f32::NAN);
@@ -116,23 +119,30 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
                 [a0i, a1i, a2i, n0i, n1i, n2i],
                 there,
                 &mut s.radiance[xs.clone()],
+                &mut s.count[xs.clone()],
                 &mut s.variances[offset * w..][xs.clone()],
                 &mut s.radiance_variances[offset * w..][xs],
             );
         });
-        let (mut variances, mut radiance_variances) = (Vec::new(), Vec::new());
+        // The root of the lower median each window's radiance variances must reach.
+        s.radiance.iter_mut().zip(&s.count).for_each(|(t, &n)| *t = NOISY_WINDOW * *t / n);
+        for o in 0..side * side {
+            let chosen = o * w..(o + 1) * w;
+            ranks(
+                &s.variances[chosen.clone()],
+                &s.radiance_variances[chosen],
+                &s.radiance,
+                &mut s.nan_first,
+                &mut s.numbers,
+                &mut s.short,
+            );
+        }
+        let mut variances = Vec::new();
         for (x, out) in out.iter_mut().enumerate() {
-            variances.clear();
-            radiance_variances.clear();
-            for o in (0..side * side).map(|o| o * w + x) {
-                if !s.variances[o].is_nan() {
-                    variances.push(s.variances[o]);
-                    radiance_variances.push(s.radiance_variances[o]);
-                }
-            }
-            let n = variances.len() as f32;
-            // False where none is alike and finite (NaN).
-            if lower_median(&mut radiance_variances).sqrt() >= NOISY_WINDOW * s.radiance[x] / n {
+            let counts = [s.count[x], s.nan_first[x], s.numbers[x], s.short[x]].map(|k| k as usize);
+            if median_root_reaches(counts) {
+                variances.clear();
+                variances.extend((0..side * side).map(|o| s.variances[o * w + x]).filter(|v| !v.is_nan()));
                 *out = out.max(lower_median(&mut variances));
             }
         }
@@ -141,27 +151,86 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
 }
 
 /// Per worker, what [`variance_in_noisy_windows`] gathers over a row: per pixel, the sum
-/// of its counted neighbours' radiance; per offset of the window, the variance of s̃ of
-/// each pixel's neighbour there and the radiance's, where that neighbour is alike and its
-/// variance finite (else NaN).
+/// of its counted neighbours' radiance (then the threshold of its window), their count,
+/// and the counts of their radiance variances that [`ranks`] keeps; per offset of the
+/// window, the variance of s̃ of each pixel's neighbour there and the radiance's, where
+/// that neighbour is alike and its variance finite (else NaN).
 #[derive(Default)]
 struct WindowScratch {
     radiance: Vec<f32>,
+    count: Vec<f32>,
+    nan_first: Vec<f32>,
+    numbers: Vec<f32>,
+    short: Vec<f32>,
     variances: Vec<f32>,
     radiance_variances: Vec<f32>,
+}
+
+/// Whether the root of the lower median of a pixel's counted radiance variances reaches its
+/// threshold, from `[counted, nan_first, numbers, short]` as [`ranks`] counts them: in
+/// [`lower_median`]'s order (`f32::total_cmp`: NaNs with the sign bit, then numbers
+/// ascending, then the other NaNs) the numbers whose root falls short come first among
+/// the numbers (the root is monotone), so the median's place among the counts says it,
+/// without ordering the window. False where none counts.
+fn median_root_reaches([counted, nan_first, numbers, short]: [usize; 4]) -> bool {
+    let lower = counted.saturating_sub(1) / 2;
+    counted > 0 && nan_first + short <= lower && lower < nan_first + numbers
+}
+
+avx2_or_compiled!(
+    /// [`ranks`], chosen once per bound.
+    type Ranks;
+    fn ranks_avx2_or_not() = ranks(
+        variances: &[f32],
+        radiance_variances: &[f32],
+        threshold: &[f32],
+        nan_first: &mut [f32],
+        numbers: &mut [f32],
+        short: &mut [f32],
+    )
+);
+
+/// Counts, for one offset of the window and each pixel of a row, where its neighbour
+/// there (counted where `variances` is not NaN) falls among the window's radiance
+/// variances `radiance_variances` in [`lower_median`]'s order: a NaN with the sign bit
+/// (first, into `nan_first`), a number (`numbers`), and a number whose root falls short
+/// of the pixel's `threshold` (`short`). Branch-free, so that it vectorises.
+#[inline(always)]
+fn ranks(
+    variances: &[f32],
+    radiance_variances: &[f32],
+    threshold: &[f32],
+    nan_first: &mut [f32],
+    numbers: &mut [f32],
+    short: &mut [f32],
+) {
+    let n = variances.len();
+    let (radiance_variances, threshold) = (&radiance_variances[..n], &threshold[..n]);
+    let (nan_first, numbers, short) = (&mut nan_first[..n], &mut numbers[..n], &mut short[..n]);
+    for k in 0..n {
+        let (counts, v) = (!variances[k].is_nan(), radiance_variances[k]);
+        let number = counts & !v.is_nan();
+        nan_first[k] += if counts & v.is_nan() & v.is_sign_negative() { 1.0 } else { 0.0 };
+        numbers[k] += if number { 1.0 } else { 0.0 };
+        // False against a NaN threshold too: no root reaches it.
+        let reaches = v.sqrt() >= threshold[k];
+        short[k] += if number & !reaches { 1.0 } else { 0.0 };
+    }
 }
 
 avx2_or_compiled!(
     /// The test of [`variance_in_noisy_windows`] at one offset: for each pixel of `here`
     /// (albedo RGB, normal XYZ) and its neighbour at the same place in `there` (variance of
     /// s̃, delta-method scale, albedo RGB, normal XYZ), whether the neighbour counts (alike,
-    /// its variance finite): then its radiance is added to `radiance`, its variance goes into
-    /// `variances` and its radiance's into `radiance_variances`; else NaN goes into both.
+    /// its variance finite): then its radiance is added to `radiance` and 1 to `count`, its
+    /// variance goes into `variances` and its radiance's into `radiance_variances`; else NaN
+    /// goes into both.
     type AlikePass;
     fn alike_pass_avx2_or_not() = add_alike(
         here: [&[f32]; 6],
         there: [&[f32]; 8],
         radiance: &mut [f32],
+        count: &mut [f32],
         variances: &mut [f32],
         radiance_variances: &mut [f32],
     )
@@ -174,6 +243,7 @@ fn add_alike(
     [a0i, a1i, a2i, n0i, n1i, n2i]: [&[f32]; 6],
     [v, m, a0j, a1j, a2j, n0j, n1j, n2j]: [&[f32]; 8],
     radiance: &mut [f32],
+    count: &mut [f32],
     variances: &mut [f32],
     radiance_variances: &mut [f32],
 ) {
@@ -183,7 +253,7 @@ fn add_alike(
     let (a0i, a1i, a2i, n0i, n1i, n2i) = (&a0i[..n], &a1i[..n], &a2i[..n], &n0i[..n], &n1i[..n], &n2i[..n]);
     let (v, m, a0j, a1j, a2j, n0j, n1j, n2j) =
         (&v[..n], &m[..n], &a0j[..n], &a1j[..n], &a2j[..n], &n0j[..n], &n1j[..n], &n2j[..n]);
-    let (variances, radiance_variances) = (&mut variances[..n], &mut radiance_variances[..n]);
+    let (count, variances, radiance_variances) = (&mut count[..n], &mut variances[..n], &mut radiance_variances[..n]);
     for k in 0..n {
         let alike = alike_differences(
             [a0j[k] - a0i[k], a1j[k] - a1i[k], a2j[k] - a2i[k]],
@@ -192,6 +262,7 @@ fn add_alike(
         let counts = (v[k] >= 0.0) & v[k].is_finite() & alike;
         // Selected, not multiplied: a neighbour that does not count adds nothing.
         radiance[k] += if counts { m[k] - 1.0 } else { 0.0 };
+        count[k] += if counts { 1.0 } else { 0.0 };
         variances[k] = if counts { v[k] } else { f32::NAN };
         radiance_variances[k] = if counts { v[k] * m[k] * m[k] } else { f32::NAN };
     }
@@ -292,6 +363,40 @@ pub(super) mod tests {
             let own = &f.s_variance[rows.start * w..rows.end * w];
             assert!(want.iter().zip(own).any(|(a, b)| a > b), "{rows:?}");
         }
+    }
+
+    #[test]
+    fn counting_says_what_the_lower_median_says() {
+        // Windows of 1 to 49 values drawn from numbers, zeros of both signs, infinities and
+        // NaNs of both signs (0 × ∞ gives one with the sign bit on x86), against thresholds
+        // below, at and above them.
+        let pool = [0.0, -0.0, 0.25, 1.0, 4.0, 9.0, f32::INFINITY, f32::NAN, -f32::NAN, 0.0 * f32::INFINITY, 1e-30];
+        let thresholds = [0.0, -0.0, 0.5, 1.0, 2.0, 3.0, 1e-15, f32::INFINITY, f32::NAN];
+        for n in 1..=49usize {
+            for seed in 0..40usize {
+                let v: Vec<f32> = (0..n).map(|k| pool[(k * 7 + seed * 13 + k * k * seed) % pool.len()]).collect();
+                for &t in &thresholds {
+                    let mut counts = [n, 0, 0, 0];
+                    for &value in &v {
+                        let [mut first, mut numbers, mut short] = [0f32; 3];
+                        ranks(
+                            &[1.0],
+                            &[value],
+                            &[t],
+                            std::slice::from_mut(&mut first),
+                            std::slice::from_mut(&mut numbers),
+                            std::slice::from_mut(&mut short),
+                        );
+                        counts[1] += first as usize;
+                        counts[2] += numbers as usize;
+                        counts[3] += short as usize;
+                    }
+                    let want = lower_median(&mut v.clone()).sqrt() >= t;
+                    assert_eq!(median_root_reaches(counts), want, "{v:?} against {t}");
+                }
+            }
+        }
+        assert!(!median_root_reaches([0, 0, 0, 0]), "no neighbour counts");
     }
 
     #[test]
