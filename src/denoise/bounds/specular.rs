@@ -129,9 +129,7 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
         for o in 0..side * side {
             let chosen = o * w..(o + 1) * w;
             ranks(
-                &s.variances[chosen.clone()],
-                &s.radiance_variances[chosen],
-                &s.radiance,
+                [&s.variances[chosen.clone()], &s.radiance_variances[chosen], &s.radiance],
                 &mut s.nan_first,
                 &mut s.numbers,
                 &mut s.short,
@@ -181,9 +179,7 @@ avx2_or_compiled!(
     /// [`ranks`], chosen once per bound.
     type Ranks;
     fn ranks_avx2_or_not() = ranks(
-        variances: &[f32],
-        radiance_variances: &[f32],
-        threshold: &[f32],
+        window: [&[f32]; 3],
         nan_first: &mut [f32],
         numbers: &mut [f32],
         short: &mut [f32],
@@ -191,15 +187,14 @@ avx2_or_compiled!(
 );
 
 /// Counts, for one offset of the window and each pixel of a row, where its neighbour
-/// there (counted where `variances` is not NaN) falls among the window's radiance
-/// variances `radiance_variances` in [`lower_median`]'s order: a NaN with the sign bit
-/// (first, into `nan_first`), a number (`numbers`), and a number whose root falls short
-/// of the pixel's `threshold` (`short`). Branch-free, so that it vectorises.
+/// there (`window`: its variance, counted where not NaN, its radiance's variance, and the
+/// pixel's threshold) falls among the window's radiance variances in [`lower_median`]'s
+/// order: a NaN with the sign bit (first, into `nan_first`), a number (`numbers`), and a
+/// number whose root falls short of the threshold (`short`). Branch-free, so that it
+/// vectorises.
 #[inline(always)]
 fn ranks(
-    variances: &[f32],
-    radiance_variances: &[f32],
-    threshold: &[f32],
+    [variances, radiance_variances, threshold]: [&[f32]; 3],
     nan_first: &mut [f32],
     numbers: &mut [f32],
     short: &mut [f32],
@@ -378,18 +373,10 @@ pub(super) mod tests {
                 for &t in &thresholds {
                     let mut counts = [n, 0, 0, 0];
                     for &value in &v {
-                        let [mut first, mut numbers, mut short] = [0f32; 3];
-                        ranks(
-                            &[1.0],
-                            &[value],
-                            &[t],
-                            std::slice::from_mut(&mut first),
-                            std::slice::from_mut(&mut numbers),
-                            std::slice::from_mut(&mut short),
-                        );
-                        counts[1] += first as usize;
-                        counts[2] += numbers as usize;
-                        counts[3] += short as usize;
+                        let mut found = [0f32; 3];
+                        let [first, numbers, short] = found.each_mut().map(std::slice::from_mut);
+                        ranks([&[1.0], &[value], &[t]], first, numbers, short);
+                        (0..3).for_each(|k| counts[k + 1] += found[k] as usize);
                     }
                     let want = lower_median(&mut v.clone()).sqrt() >= t;
                     assert_eq!(median_root_reaches(counts), want, "{v:?} against {t}");
