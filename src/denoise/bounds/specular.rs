@@ -363,7 +363,8 @@ pub(super) mod tests {
     #[test]
     fn counting_says_what_the_lower_median_says() {
         // Windows of 1 to 49 values drawn from numbers, zeros of both signs, infinities and
-        // NaNs of both signs (0 × ∞ gives one with the sign bit on x86), against thresholds
+        // NaNs of both signs (at run time on x86, 0 × ∞ is a NaN with the sign bit: a
+        // neighbour without variance beside an infinite radiance), against thresholds
         // below, at and above them.
         let pool = [0.0, -0.0, 0.25, 1.0, 4.0, 9.0, f32::INFINITY, f32::NAN, -f32::NAN, 0.0 * f32::INFINITY, 1e-30];
         let thresholds = [0.0, -0.0, 0.5, 1.0, 2.0, 3.0, 1e-15, f32::INFINITY, f32::NAN];
