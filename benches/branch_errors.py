@@ -16,6 +16,11 @@ noisy frame with MODEL (`kpcn denoise --aovs`) and prints per frame, in relMSE (
   belongs at that scale, the finer structure is the model's. Near the model's own, the
   error is not the light kept but how it lies within a block.
 
+OTHER=MODEL2 adds two columns that swap in another model's branch: MODEL2's diffuse output
+with MODEL's specular ("diffuse from OTHER"), and MODEL's diffuse with MODEL2's specular
+("specular from OTHER"), each as a multiple of MODEL's own: which branch makes one model
+worse than the other.
+
 Then the geometric mean of each over the frames, per sample count. A diagnosis, not a way to
 choose models: the team's dev set is never chosen on. Needs numpy, OpenEXR and a built
 `target/release/kpcn`.
@@ -71,16 +76,23 @@ def main():
         sys.exit(__doc__)
     folder, model = sys.argv[1], sys.argv[2]
     b = int(sys.argv[3]) if len(sys.argv) == 4 else 8
+    other = os.environ.get("OTHER")
     columns = ["model", "diffuse exact", "specular exact", f"diffuse light exact ({b}x{b})"]
+    if other:
+        columns += ["diffuse from OTHER", "specular from OTHER"]
     print(f"{'scene':<12} {'spp':>4} | " + " | ".join(f"{c:>26}" for c in columns))
     logs = {}
     with tempfile.TemporaryDirectory() as work:
-        out = os.path.join(work, "den.exr")
+        out, out2 = os.path.join(work, "den.exr"), os.path.join(work, "other.exr")
         for scene, spp, noisy, ref in frames(folder):
             denoise(model, noisy, out)
             r, rd, rs = (read(ref, rgb(layer)) for layer in ("", "diffuse", "specular"))
             xd, xs = read(out, rgb("denoised_diffuse")), read(out, rgb("denoised_specular"))
             scores = [relmse(xd + xs, r), relmse(rd + xs, r), relmse(xd + rs, r), relmse(block_gain(xd, rd, b) + xs, r)]
+            if other:
+                denoise(other, noisy, out2)
+                od, os_ = read(out2, rgb("denoised_diffuse")), read(out2, rgb("denoised_specular"))
+                scores += [relmse(od + xs, r), relmse(xd + os_, r)]
             own = scores[0]
             cells = [f"{scores[0]:.5f}"] + [f"{s:.5f} ({s / own:.2f}x)" if own > 0 else f"{s:.5f}" for s in scores[1:]]
             print(f"{scene:<12} {spp:>4} | " + " | ".join(f"{c:>26}" for c in cells), flush=True)
