@@ -91,8 +91,8 @@ def main():
             scores = [relmse(xd + xs, r), relmse(rd + xs, r), relmse(xd + rs, r), relmse(block_gain(xd, rd, b) + xs, r)]
             if other:
                 denoise(other, noisy, out2)
-                od, os_ = read(out2, rgb("denoised_diffuse")), read(out2, rgb("denoised_specular"))
-                scores += [relmse(od + xs, r), relmse(xd + os_, r)]
+                other_d, other_s = read(out2, rgb("denoised_diffuse")), read(out2, rgb("denoised_specular"))
+                scores += [relmse(other_d + xs, r), relmse(xd + other_s, r)]
             own = scores[0]
             cells = [f"{scores[0]:.5f}"] + [f"{s:.5f} ({s / own:.2f}x)" if own > 0 else f"{s:.5f}" for s in scores[1:]]
             print(f"{scene:<12} {spp:>4} | " + " | ".join(f"{c:>26}" for c in cells), flush=True)

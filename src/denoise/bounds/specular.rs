@@ -104,7 +104,7 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
     let (pass, ranks) = (alike_pass_avx2_or_not(), ranks_avx2_or_not());
     let mut out = variance[rows.start * w..rows.end * w].to_vec();
     out.par_chunks_mut(w).zip(rows).for_each_init(WindowScratch::default, |s, (out, y)| {
-        for sums in [&mut s.radiance, &mut s.count, &mut s.nan_first, &mut s.numbers, &mut s.short] {
+        for sums in [&mut s.radiance, &mut s.count, &mut s.threshold, &mut s.nan_first, &mut s.numbers, &mut s.short] {
             sums.clear();
             sums.resize(w, 0.0);
         }
@@ -125,11 +125,13 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
             );
         });
         // The root of the lower median each window's radiance variances must reach.
-        s.radiance.iter_mut().zip(&s.count).for_each(|(t, &n)| *t = NOISY_WINDOW * *t / n);
+        for ((t, &radiance), &n) in s.threshold.iter_mut().zip(&s.radiance).zip(&s.count) {
+            *t = NOISY_WINDOW * radiance / n;
+        }
         for o in 0..side * side {
             let chosen = o * w..(o + 1) * w;
             ranks(
-                [&s.variances[chosen.clone()], &s.radiance_variances[chosen], &s.radiance],
+                [&s.variances[chosen.clone()], &s.radiance_variances[chosen], &s.threshold],
                 &mut s.nan_first,
                 &mut s.numbers,
                 &mut s.short,
@@ -149,14 +151,15 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
 }
 
 /// Per worker, what [`variance_in_noisy_windows`] gathers over a row: per pixel, the sum
-/// of its counted neighbours' radiance (then the threshold of its window), their count,
-/// and the counts of their radiance variances that [`ranks`] keeps; per offset of the
+/// of its counted neighbours' radiance, their count, the threshold of its window, and the
+/// counts of their radiance variances that [`ranks`] keeps; per offset of the
 /// window, the variance of s̃ of each pixel's neighbour there and the radiance's, where
 /// that neighbour is alike and its variance finite (else NaN).
 #[derive(Default)]
 struct WindowScratch {
     radiance: Vec<f32>,
     count: Vec<f32>,
+    threshold: Vec<f32>,
     nan_first: Vec<f32>,
     numbers: Vec<f32>,
     short: Vec<f32>,
