@@ -10,6 +10,10 @@
 # `denoised` (files as Blender writes them, corpus/raw/: CHANNELS=ViewLayer.Denoised).
 # ONLY=REGEX scores only the split's scenes whose name matches (an awk regular expression:
 # ONLY='^cyc-' for the Cycles scenes of a snapshot that mixes in simulator scenes).
+# MAX_FLOOR=F leaves out the scenes whose reference is itself noisier than relMSE F
+# (`reference_relmse_floor`, below), as scripts/train-cycles.sh's KPCN_MAX_FLOOR leaves
+# them out of training: scenes no model trained on, scored alike, are
+# `SPLIT=all ONLY='^cyc-000(4[6-9]|[5-7][0-9]|8[0-5])$' MAX_FLOOR=0.06` on the corpus.
 # PER_SCENE=1 also prints each frame's relMSE, and the other models' multiples of it.
 # "light kept" is the denoised frame's mean over the noisy input's (geometric mean over the
 # frames; the input is the root R,G,B, or LAYER.Combined beside LAYER.Denoised), and
@@ -53,6 +57,11 @@ for row in open(sys.argv[2]):
         d = json.loads(line)
         print(d["scene"], d.get("reference_relmse_floor", 0.0))
 PY
+if [ -n "${MAX_FLOOR:-}" ]; then
+    rows=$(awk -F, -v max="$MAX_FLOOR" 'NR == FNR { split($0, a, " "); f[a[1]] = a[2]; next } !($1 in f) || f[$1] <= max' \
+        "$work/floors" - <<<"$rows")
+    [ -n "$rows" ] || { echo "quality_corpus: every $split scene's reference is noisier than $MAX_FLOOR" >&2; exit 1; }
+fi
 m=0
 for model in "$@"; do
     while IFS=, read -r scene _ _ _ spp file reference _; do

@@ -4,7 +4,7 @@ use kpcn::features::Branch;
 use kpcn::model::{Architecture, Design, Exposure, Kind, Model, Preprocessing, Variances};
 use kpcn::train::augment::{ChannelOrder, Orientation};
 use kpcn::train::data::{Augmentation, Dataset, Firefly, batch, batch_augmented};
-use kpcn::train::{Loss, TrainOptions, Trainer, l1};
+use kpcn::train::{Loss, LossScale, TrainOptions, Trainer, l1};
 use std::path::Path;
 use std::process::Command;
 
@@ -55,6 +55,7 @@ fn options(steps: u64) -> TrainOptions {
         cosine: true,
         loss: Default::default(),
         block_weight: 1.0,
+        loss_scale: Default::default(),
         augment: false,
         fireflies: None,
         permute_channels: false,
@@ -294,7 +295,19 @@ fn auto_exposed_frames_train_on_targets_at_their_exposure_and_validate_as_render
             assert!(close(scale(x), y), "{b:?} noisy {x} → {y}");
         }
         assert_eq!(v(&r.albedo), v(&a.albedo));
+        // What `--loss-scale rendered` divides by.
+        assert_eq!((v(&r.exposure), v(&a.exposure)), (vec![1.0], vec![e]));
     }
+    // On raw radiance the loss's scale changes nothing, bit for bit.
+    let trained = |loss_scale| {
+        let opts = TrainOptions { loss: Loss::Relative, loss_scale, ..options(3) };
+        let mut t = Trainer::new(&tiny(), &raw, opts).unwrap();
+        while !t.finished() {
+            t.train_step().unwrap();
+        }
+        weights(&t.model.snapshot("raw").unwrap())
+    };
+    assert!(trained(LossScale::Rendered) == trained(LossScale::Exposed), "the rendered scale changed raw training");
     // Training and validation run; the validation error is of the scaled-back output.
     let model = Model::xavier(arch, 1).unwrap();
     let mut t = Trainer::new(&model, &auto, options(4)).unwrap();

@@ -9,7 +9,7 @@ use kpcn::features::Branch;
 use kpcn::kernel::ops::Ops;
 use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
-use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, TrainOptions, Trainer};
+use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, LossScale, TrainOptions, Trainer};
 use kpcn::train::{curves, records};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -102,6 +102,12 @@ pub struct TrainArgs {
     /// --resume.
     #[arg(long, default_value_t = 1.0, value_name = "W")]
     pub block_weight: f64,
+    /// Where the loss charges errors. With --exposure auto, `exposed` charges them at the
+    /// autoexposed scale, where relMSE's 0.01 in the denominator weighs a brightened dim
+    /// frame's errors more than `kpcn eval` does; `rendered` charges them as `kpcn eval`
+    /// does. Give it again with --resume.
+    #[arg(long, value_enum, default_value_t = LossScale::Exposed)]
+    pub loss_scale: LossScale,
     /// Show each patch mirrored and/or transposed at random (8 orientations), so the
     /// network learns from 8 times the content. Give it again with --resume.
     #[arg(long)]
@@ -232,6 +238,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         cosine: args.schedule == Schedule::Cosine,
         loss: args.loss,
         block_weight: args.block_weight,
+        loss_scale: args.loss_scale,
         augment: args.augment,
         fireflies: args.fireflies.then(|| {
             let d = Fireflies::default();

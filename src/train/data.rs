@@ -366,6 +366,9 @@ pub struct Batch {
     pub albedo: Tensor,
     /// Reference colour `[B, 3, p, p]`.
     pub reference: Tensor,
+    /// Each patch's frame exposure `[B, 1, 1, 1]` (1 for raw radiance): the factor
+    /// `target` and `reference` carry over the radiance the renderer wrote.
+    pub exposure: Tensor,
 }
 
 fn crop(planes: [&Vec<f32>; 3], w: usize, x0: usize, y0: usize, p: usize, out: &mut Vec<f32>) {
@@ -482,6 +485,7 @@ pub fn batch_augmented(
         target: t(target, (n, 3, p, p))?,
         albedo: t(albedo, (n, 3, p, p))?,
         reference: t(reference, (n, 3, p, p))?,
+        exposure: t(frames.iter().map(|f| f.features.exposure).collect(), (n, 1, 1, 1))?,
     })
 }
 

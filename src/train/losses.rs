@@ -123,6 +123,18 @@ pub fn tonemapped_l1(x: &Tensor, y: &Tensor) -> Result<Tensor, ModelError> {
     l1(&t(x)?, &t(y)?)
 }
 
+/// Where the loss charges errors (`kpcn train --loss-scale`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum LossScale {
+    /// At the scale the network sees (autoexposed, with `--exposure auto`).
+    #[default]
+    Exposed,
+    /// At the radiance the renderer wrote: each patch's prediction and target divided by
+    /// its frame's exposure first, as the evaluator charges them. The same as `exposed`
+    /// for raw radiance.
+    Rendered,
+}
+
 /// The training loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Loss {
@@ -194,20 +206,39 @@ impl Loss {
         }
     }
 
-    /// The loss of the specular branch's output `s_hat` against its target ln(1 + s).
+    /// [`Loss::radiance`] with `x` and `y` first divided by each patch's `exposure`
+    /// (`[B, 1, 1, 1]`): the error charged at the radiance the renderer wrote, as the
+    /// evaluator charges it, not at the scale the network sees.
+    pub fn radiance_as_rendered(
+        self,
+        x: &Tensor,
+        y: &Tensor,
+        exposure: &Tensor,
+        block_weight: f64,
+    ) -> Result<Tensor, ModelError> {
+        self.radiance(&x.broadcast_div(exposure)?, &y.broadcast_div(exposure)?, block_weight)
+    }
+
+    /// The loss of the specular branch's output `s_hat` against its target ln(1 + s); with
+    /// `exposure` (each patch's, `[B, 1, 1, 1]`) the relative term is charged at the
+    /// radiance the renderer wrote, as in [`Loss::radiance_as_rendered`].
     pub fn specular(
         self,
         domain: Specular,
         s_hat: &Tensor,
         target_log: &Tensor,
         block_weight: f64,
+        exposure: Option<&Tensor>,
     ) -> Result<Tensor, ModelError> {
         let log = l1(&domain.log_tensor(s_hat)?, target_log)?;
         if self.relative().is_none() {
             return Ok(log);
         }
-        let target = (target_log.exp()? - 1.0)?;
-        match self.relative_term(&domain.radiance_tensor(s_hat)?, &target, block_weight)? {
+        let (mut radiance, mut target) = (domain.radiance_tensor(s_hat)?, (target_log.exp()? - 1.0)?);
+        if let Some(e) = exposure {
+            (radiance, target) = (radiance.broadcast_div(e)?, target.broadcast_div(e)?);
+        }
+        match self.relative_term(&radiance, &target, block_weight)? {
             Some(relative) => Ok((relative + log)?),
             None => Ok(log),
         }
@@ -384,6 +415,39 @@ mod tests {
         assert!(cost(relmse_blocks, &dropped) < cost(relmse_blocks, &kept), "relmse-blocks prefers dropping");
         let (drop, keep) = (cost(relmse_light, &dropped), cost(relmse_light, &kept));
         assert!(drop > 10.0 * keep, "relmse-light: dropped {drop}, kept {keep}");
+    }
+
+    #[test]
+    fn as_rendered_a_brightened_patch_costs_what_it_cost_before_brightening() {
+        // Two patches, brightened 8× and darkened 2× by autoexposure: charged as rendered,
+        // their errors cost what the unexposed patches' do, in both branches' terms;
+        // charged as exposed they cost otherwise (relMSE's 0.01 in the denominator weighs
+        // less beside brightened values, more beside darkened ones).
+        let dev = &Device::Cpu;
+        let rendered_y: Vec<f32> = (0..128).map(|i| 0.02 + 0.05 * (i % 7) as f32).collect();
+        let rendered_x: Vec<f32> =
+            rendered_y.iter().enumerate().map(|(i, v)| v * (0.6 + 0.1 * (i % 5) as f32)).collect();
+        let e = Tensor::new(&[8f32, 0.5], dev).unwrap().reshape((2, 1, 1, 1)).unwrap();
+        let image = |v: &[f32]| Tensor::new(v, dev).unwrap().reshape((2, 1, 8, 8)).unwrap();
+        let (x, y) = (image(&rendered_x), image(&rendered_y));
+        let (ex, ey) = (x.broadcast_mul(&e).unwrap(), y.broadcast_mul(&e).unwrap());
+        for loss in [Loss::L1, Loss::Relative, Loss::RelmseLocal, Loss::RelmseLight] {
+            let plain = scalar(&loss.radiance(&x, &y, 1.0).unwrap()).unwrap();
+            let rendered = scalar(&loss.radiance_as_rendered(&ex, &ey, &e, 1.0).unwrap()).unwrap();
+            assert!((rendered / plain - 1.0).abs() < 1e-5, "{loss:?}: {rendered} against {plain}");
+            let exposed = scalar(&loss.radiance(&ex, &ey, 1.0).unwrap()).unwrap();
+            assert!((exposed / plain - 1.0).abs() > 0.05, "{loss:?}: exposure did not matter");
+            // The specular branch's loss on ŝ = ln(1 + s): only its relative term moves to
+            // the rendered scale; the L1 of the logs stays where the network works.
+            let domain = Specular::Log;
+            let (log_ex, log_ey) =
+                ((ex.clone() + 1.0).unwrap().log().unwrap(), (ey.clone() + 1.0).unwrap().log().unwrap());
+            let specular = scalar(&loss.specular(domain, &log_ex, &log_ey, 1.0, Some(&e)).unwrap()).unwrap();
+            let relative =
+                if loss == Loss::L1 { 0.0 } else { plain - scalar(&tonemapped_l1(&x, &y).unwrap()).unwrap() };
+            let log_l1 = scalar(&l1(&log_ex, &log_ey).unwrap()).unwrap();
+            assert!((specular - log_l1 - relative).abs() < 1e-5 * (log_l1 + relative), "{loss:?} specular: {specular}");
+        }
     }
 
     #[test]

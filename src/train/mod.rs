@@ -22,7 +22,7 @@ use crate::model::Architecture;
 use crate::model::{BranchWeights, Design, Kind, Model, ModelError, multiscale};
 use augment::{ChannelOrder, Orientation};
 use candle_core::{DType, Device, Tensor, Var};
-pub use losses::{Loss, l1, recompose, relative_l2, tonemapped_l1};
+pub use losses::{Loss, LossScale, l1, recompose, relative_l2, tonemapped_l1};
 pub use optimiser::Adam;
 pub use records::LogRow;
 
@@ -154,6 +154,8 @@ pub struct TrainOptions {
     pub loss: Loss,
     /// The weight of `relmse-light`'s block term (1 by default).
     pub block_weight: f64,
+    /// Where the loss charges errors.
+    pub loss_scale: LossScale,
     /// Each patch in one of the square's eight orientations, drawn at random.
     pub augment: bool,
     /// Fireflies added to each patch's noisy input (never to its reference), if any.
@@ -392,13 +394,15 @@ impl<'a> Trainer<'a> {
         if self.step <= self.opts.phase1_steps {
             if self.opts.only != Some(Branch::Specular) {
                 let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
-                let ld = self.opts.loss.radiance(&d_hat, &bd.target, self.opts.block_weight)?;
+                let ld = self.radiance_loss(&d_hat, &bd.target, &bd.exposure)?;
                 self.adam_d.step(&self.model.vars(true, false), &ld)?;
                 row.loss_diffuse = scalar(&ld)? as f64;
             }
             if self.opts.only != Some(Branch::Diffuse) {
                 let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
-                let ls = self.opts.loss.specular(arch.specular, &s_hat, &bs.target, self.opts.block_weight)?;
+                let exposure = (self.opts.loss_scale == LossScale::Rendered).then_some(&bs.exposure);
+                let ls =
+                    self.opts.loss.specular(arch.specular, &s_hat, &bs.target, self.opts.block_weight, exposure)?;
                 self.adam_s.step(&self.model.vars(false, true), &ls)?;
                 row.loss_specular = scalar(&ls)? as f64;
             }
@@ -407,12 +411,21 @@ impl<'a> Trainer<'a> {
             let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
             let s = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
-            let lc = self.opts.loss.radiance(&c, &bd.reference, self.opts.block_weight)?;
+            let lc = self.radiance_loss(&c, &bd.reference, &bd.exposure)?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }
         row.patches_per_second = self.opts.batch as f64 / t.elapsed().as_secs_f64().max(1e-9);
         Ok(row)
+    }
+
+    /// The loss of a radiance prediction, at the scale [`TrainOptions::loss_scale`] asks.
+    fn radiance_loss(&self, x: &Tensor, y: &Tensor, exposure: &Tensor) -> Result<Tensor, TrainError> {
+        let (loss, w) = (self.opts.loss, self.opts.block_weight);
+        Ok(match self.opts.loss_scale {
+            LossScale::Exposed => loss.radiance(x, y, w)?,
+            LossScale::Rendered => loss.radiance_as_rendered(x, y, exposure, w)?,
+        })
     }
 
     /// Mean relMSE of the denoised held-out frames (None without validation frames).
@@ -480,6 +493,7 @@ mod tests {
             cosine: true,
             loss: Loss::L1,
             block_weight: 1.0,
+            loss_scale: LossScale::Exposed,
             augment: false,
             fireflies: None,
             permute_channels: false,
