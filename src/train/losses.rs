@@ -198,30 +198,27 @@ impl Loss {
         }
     }
 
-    /// The loss of a prediction of linear radiance (the irradiance, the colour).
-    pub fn radiance(self, x: &Tensor, y: &Tensor, block_weight: f64) -> Result<Tensor, ModelError> {
-        match self.relative_term(x, y, block_weight)? {
-            None => l1(x, y),
-            Some(relative) => Ok((relative + tonemapped_l1(x, y)?)?),
-        }
-    }
-
-    /// [`Loss::radiance`] with `x` and `y` first divided by each patch's `exposure`
-    /// (`[B, 1, 1, 1]`): the error charged at the radiance the renderer wrote, as the
-    /// evaluator charges it, not at the scale the network sees.
-    pub fn radiance_as_rendered(
+    /// The loss of a prediction of linear radiance (the irradiance, the colour). With
+    /// `exposure` (each patch's, `[B, 1, 1, 1]`) `x` and `y` are first divided by it: the
+    /// error charged at the radiance the renderer wrote, as the evaluator charges it, not at
+    /// the scale the network sees ([`LossScale::Rendered`]).
+    pub fn radiance(
         self,
         x: &Tensor,
         y: &Tensor,
-        exposure: &Tensor,
         block_weight: f64,
+        exposure: Option<&Tensor>,
     ) -> Result<Tensor, ModelError> {
-        self.radiance(&x.broadcast_div(exposure)?, &y.broadcast_div(exposure)?, block_weight)
+        let (x, y) = as_rendered(x.clone(), y.clone(), exposure)?;
+        match self.relative_term(&x, &y, block_weight)? {
+            None => l1(&x, &y),
+            Some(relative) => Ok((relative + tonemapped_l1(&x, &y)?)?),
+        }
     }
 
     /// The loss of the specular branch's output `s_hat` against its target ln(1 + s); with
-    /// `exposure` (each patch's, `[B, 1, 1, 1]`) the relative term is charged at the
-    /// radiance the renderer wrote, as in [`Loss::radiance_as_rendered`].
+    /// `exposure` its relative term is charged at the radiance the renderer wrote, as in
+    /// [`Loss::radiance`], and the L1 of the logs where the network works.
     pub fn specular(
         self,
         domain: Specular,
@@ -234,15 +231,20 @@ impl Loss {
         if self.relative().is_none() {
             return Ok(log);
         }
-        let (mut radiance, mut target) = (domain.radiance_tensor(s_hat)?, (target_log.exp()? - 1.0)?);
-        if let Some(e) = exposure {
-            (radiance, target) = (radiance.broadcast_div(e)?, target.broadcast_div(e)?);
-        }
+        let (radiance, target) = as_rendered(domain.radiance_tensor(s_hat)?, (target_log.exp()? - 1.0)?, exposure)?;
         match self.relative_term(&radiance, &target, block_weight)? {
             Some(relative) => Ok((relative + log)?),
             None => Ok(log),
         }
     }
+}
+
+/// `x` and `y` divided by each patch's `exposure`, where one is given.
+fn as_rendered(x: Tensor, y: Tensor, exposure: Option<&Tensor>) -> Result<(Tensor, Tensor), ModelError> {
+    Ok(match exposure {
+        Some(e) => (x.broadcast_div(e)?, y.broadcast_div(e)?),
+        None => (x, y),
+    })
 }
 
 /// Recomposed colour `(albedo + ε) ⊙ d̂` plus the specular radiance of `ŝ`
@@ -300,7 +302,7 @@ mod tests {
         // 0.008 on 16-sample ones); with the targets' 5×5 mean (relmse_local), +0.2 % and
         // −8 %. The tonemapped L1 term pulls toward the targets' median: the whole loss
         // lands +0.2 % off on 512-sample targets, +2.8 % on 16.
-        let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y, 1.0);
+        let full = |x: &Tensor, y: &Tensor| Loss::Relative.radiance(x, y, 1.0, None);
         for (n, full_bias, local_bias) in [(512, 0.01, 0.01), (16, 0.05, 0.15)] {
             let ys = noisy_targets(n, 0.05, 4000);
             let mean = ys.iter().map(|&v| v as f64).sum::<f64>() / ys.len() as f64;
@@ -432,10 +434,10 @@ mod tests {
         let (x, y) = (image(&rendered_x), image(&rendered_y));
         let (ex, ey) = (x.broadcast_mul(&e).unwrap(), y.broadcast_mul(&e).unwrap());
         for loss in [Loss::L1, Loss::Relative, Loss::RelmseLocal, Loss::RelmseLight] {
-            let plain = scalar(&loss.radiance(&x, &y, 1.0).unwrap()).unwrap();
-            let rendered = scalar(&loss.radiance_as_rendered(&ex, &ey, &e, 1.0).unwrap()).unwrap();
+            let plain = scalar(&loss.radiance(&x, &y, 1.0, None).unwrap()).unwrap();
+            let rendered = scalar(&loss.radiance(&ex, &ey, 1.0, Some(&e)).unwrap()).unwrap();
             assert!((rendered / plain - 1.0).abs() < 1e-5, "{loss:?}: {rendered} against {plain}");
-            let exposed = scalar(&loss.radiance(&ex, &ey, 1.0).unwrap()).unwrap();
+            let exposed = scalar(&loss.radiance(&ex, &ey, 1.0, None).unwrap()).unwrap();
             assert!((exposed / plain - 1.0).abs() > 0.05, "{loss:?}: exposure did not matter");
             // The specular branch's loss on ŝ = ln(1 + s): only its relative term moves to
             // the rendered scale; the L1 of the logs stays where the network works.
@@ -457,7 +459,7 @@ mod tests {
         let p: Vec<f32> = (0..256).map(|i| if i % 16 < 8 && i / 16 < 8 { 3.0 } else { 0.05 }).collect();
         let y = Tensor::new(p, &Device::Cpu).unwrap().reshape((1, 1, 16, 16)).unwrap();
         let x = Tensor::full(0.05f32, (1, 1, 16, 16), &Device::Cpu).unwrap();
-        let cost = |loss: Loss, w: f64| scalar(&loss.radiance(&x, &y, w).unwrap()).unwrap();
+        let cost = |loss: Loss, w: f64| scalar(&loss.radiance(&x, &y, w, None).unwrap()).unwrap();
         let block = scalar(&relmse_light(&x, &y).unwrap()).unwrap() - scalar(&relmse(&x, &y).unwrap()).unwrap();
         assert!(block > 0.1, "the dropped block costs {block}");
         let added = cost(Loss::RelmseLight, 64.0) - cost(Loss::RelmseLight, 1.0);

@@ -394,15 +394,14 @@ impl<'a> Trainer<'a> {
         if self.step <= self.opts.phase1_steps {
             if self.opts.only != Some(Branch::Specular) {
                 let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
-                let ld = self.radiance_loss(&d_hat, &bd.target, &bd.exposure)?;
+                let ld = self.opts.loss.radiance(&d_hat, &bd.target, self.opts.block_weight, self.exposure(&bd))?;
                 self.adam_d.step(&self.model.vars(true, false), &ld)?;
                 row.loss_diffuse = scalar(&ld)? as f64;
             }
             if self.opts.only != Some(Branch::Diffuse) {
                 let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
-                let exposure = (self.opts.loss_scale == LossScale::Rendered).then_some(&bs.exposure);
-                let ls =
-                    self.opts.loss.specular(arch.specular, &s_hat, &bs.target, self.opts.block_weight, exposure)?;
+                let (loss, w) = (self.opts.loss, self.opts.block_weight);
+                let ls = loss.specular(arch.specular, &s_hat, &bs.target, w, self.exposure(&bs))?;
                 self.adam_s.step(&self.model.vars(false, true), &ls)?;
                 row.loss_specular = scalar(&ls)? as f64;
             }
@@ -411,7 +410,7 @@ impl<'a> Trainer<'a> {
             let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
             let s = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
-            let lc = self.radiance_loss(&c, &bd.reference, &bd.exposure)?;
+            let lc = self.opts.loss.radiance(&c, &bd.reference, self.opts.block_weight, self.exposure(&bd))?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }
@@ -419,13 +418,10 @@ impl<'a> Trainer<'a> {
         Ok(row)
     }
 
-    /// The loss of a radiance prediction, at the scale [`TrainOptions::loss_scale`] asks.
-    fn radiance_loss(&self, x: &Tensor, y: &Tensor, exposure: &Tensor) -> Result<Tensor, TrainError> {
-        let (loss, w) = (self.opts.loss, self.opts.block_weight);
-        Ok(match self.opts.loss_scale {
-            LossScale::Exposed => loss.radiance(x, y, w)?,
-            LossScale::Rendered => loss.radiance_as_rendered(x, y, exposure, w)?,
-        })
+    /// What the loss divides a batch by first: its patches' exposures, where
+    /// [`TrainOptions::loss_scale`] asks for the rendered scale.
+    fn exposure<'b>(&self, batch: &'b data::Batch) -> Option<&'b Tensor> {
+        (self.opts.loss_scale == LossScale::Rendered).then_some(&batch.exposure)
     }
 
     /// Mean relMSE of the denoised held-out frames (None without validation frames).
