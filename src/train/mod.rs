@@ -391,16 +391,16 @@ impl<'a> Trainer<'a> {
         };
         let lr = self.opts.learning_rate(self.step);
         (self.adam_d.lr, self.adam_s.lr, self.adam_c.lr) = (lr, lr, lr);
+        let (loss, w) = (self.opts.loss, self.opts.block_weight);
         if self.step <= self.opts.phase1_steps {
             if self.opts.only != Some(Branch::Specular) {
                 let d_hat = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
-                let ld = self.opts.loss.radiance(&d_hat, &bd.target, self.opts.block_weight, self.exposure(&bd))?;
+                let ld = loss.radiance(&d_hat, &bd.target, w, self.exposure(&bd))?;
                 self.adam_d.step(&self.model.vars(true, false), &ld)?;
                 row.loss_diffuse = scalar(&ld)? as f64;
             }
             if self.opts.only != Some(Branch::Diffuse) {
                 let s_hat = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
-                let (loss, w) = (self.opts.loss, self.opts.block_weight);
                 let ls = loss.specular(arch.specular, &s_hat, &bs.target, w, self.exposure(&bs))?;
                 self.adam_s.step(&self.model.vars(false, true), &ls)?;
                 row.loss_specular = scalar(&ls)? as f64;
@@ -410,7 +410,7 @@ impl<'a> Trainer<'a> {
             let d = self.model.predict(Branch::Diffuse, &bd.input, &bd.noisy)?;
             let s = self.model.predict(Branch::Specular, &bs.input, &bs.noisy)?;
             let c = recompose(&bd.albedo, &d, &s, arch.specular)?;
-            let lc = self.opts.loss.radiance(&c, &bd.reference, self.opts.block_weight, self.exposure(&bd))?;
+            let lc = loss.radiance(&c, &bd.reference, w, self.exposure(&bd))?;
             self.adam_c.step(&self.model.vars(true, true), &lc)?;
             row.loss_combined = scalar(&lc)? as f64;
         }
