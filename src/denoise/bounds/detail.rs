@@ -7,7 +7,7 @@
 //! normals, fitted by least squares (a guided filter on the residual, guided by the
 //! normal), is the detail, and the noise, which does not follow the normals, stays out.
 
-use super::{BandPlanes, box_sums};
+use super::{BandPlanes, box_means};
 use rayon::prelude::*;
 
 /// Added to the normals' covariance over a window before it is inverted: where the normals
@@ -84,19 +84,24 @@ fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
         })
         .collect();
     let normal: Vec<Vec<f32>> = planes[6..9].iter().map(|p| p.par_iter().map(|&v| finite(v)).collect()).collect();
-    let mean = |plane: &[f32], count: &[f32]| -> Vec<f32> {
-        box_sums(plane, w, r, rows).into_par_iter().zip(count).map(|(s, n)| s / n).collect()
+    let count = window_counts(w, r, rows);
+    let mean = |plane: &[f32]| box_means(w, r, rows, Some(&count), |y, _| Some(&plane[y * w..(y + 1) * w]));
+    // The mean of the product of two planes, each row's product made where it is summed.
+    let mean_product = |a: &[f32], b: &[f32]| {
+        box_means(w, r, rows, Some(&count), |y, scratch| {
+            let at = y * w..(y + 1) * w;
+            scratch.iter_mut().zip(&a[at.clone()]).zip(&b[at]).for_each(|((s, a), b)| *s = a * b);
+            None
+        })
     };
-    let product = |a: &[f32], b: &[f32]| -> Vec<f32> { a.par_iter().zip(b).map(|(a, b)| a * b).collect() };
-    let count = box_sums(&vec![1f32; w * rows], w, r, rows);
-    let g: Vec<Vec<f32>> = normal.iter().map(|p| mean(p, &count)).collect();
-    let e: Vec<Vec<f32>> = residual.iter().map(|p| mean(p, &count)).collect();
+    let g: Vec<Vec<f32>> = normal.iter().map(|p| mean(p)).collect();
+    let e: Vec<Vec<f32>> = residual.iter().map(|p| mean(p)).collect();
     let variance: Vec<f32> = planes[9].par_iter().map(|&v| finite(v).max(0.0)).collect();
-    let noise = mean(&variance, &count);
+    let noise = mean(&variance);
     // Second moments over each window: normals with normals (j ≤ k), normals with the
     // residual.
-    let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean(&product(&normal[j], &normal[k]), &count)).collect();
-    let ge: Vec<Vec<f32>> = (0..9).map(|i| mean(&product(&normal[i / 3], &residual[i % 3]), &count)).collect();
+    let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean_product(&normal[j], &normal[k])).collect();
+    let ge: Vec<Vec<f32>> = (0..9).map(|i| mean_product(&normal[i / 3], &residual[i % 3])).collect();
     // Each window's slopes: fit[j * 3 + c] is the residual's channel c per unit of
     // normal component j.
     let n = w * rows;
@@ -120,8 +125,14 @@ fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
     let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
     drop((e, gg, ge));
     // The mean over the windows around each pixel of their slopes, one plane at a time.
-    let slope: Vec<Vec<f32>> =
-        (0..9).map(|k| mean(&fits.par_iter().map(|f| f[k]).collect::<Vec<f32>>(), &count)).collect();
+    let slope: Vec<Vec<f32>> = (0..9)
+        .map(|k| {
+            box_means(w, r, rows, Some(&count), |y, scratch| {
+                scratch.iter_mut().zip(&fits[y * w..(y + 1) * w]).for_each(|(s, f)| *s = f[k]);
+                None
+            })
+        })
+        .collect();
     drop(fits);
     std::array::from_fn(|ch| {
         (0..n)
@@ -138,6 +149,13 @@ fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
             })
             .collect()
     })
+}
+
+/// How many pixels of rows `rows`, `w` wide, the window of radius `r` around each holds,
+/// cut at their edges: what [`box_means`] of ones would give (exact integers either way).
+fn window_counts(w: usize, r: usize, rows: usize) -> Vec<f32> {
+    let span = |i: usize, n: usize| ((i + r + 1).min(n) - i.saturating_sub(r)) as f32;
+    (0..w * rows).into_par_iter().map(|i| span(i / w, rows) * span(i % w, w)).collect()
 }
 
 /// The normal components' pairs (j ≤ k) whose products a window's covariance needs.
@@ -184,6 +202,14 @@ mod tests {
 
     fn squared_error(a: &[f32], b: &[f32]) -> f64 {
         a.iter().zip(b).map(|(a, b)| f64::from(a - b).powi(2)).sum()
+    }
+
+    #[test]
+    fn window_counts_are_the_box_sums_of_ones() {
+        for (w, rows, r) in [(1, 1, 7), (5, 3, 1), (23, 17, 7), (40, 9, 20)] {
+            let ones = super::super::box_sums(&vec![1f32; w * rows], w, r, rows);
+            assert_eq!(window_counts(w, r, rows), ones, "{w}×{rows}, r {r}");
+        }
     }
 
     #[test]

@@ -194,33 +194,57 @@ const RUNNING_SUM_LIMIT: f32 = 1e4;
 /// each pixel of those rows, cut at the frame's edges and at `rows`: along each row, then
 /// down each column, each in the same order whatever `rows` is.
 pub(super) fn box_sums(plane: &[f32], w: usize, r: usize, rows: usize) -> Vec<f32> {
+    box_means(w, r, rows, None, |y, _| Some(&plane[y * w..(y + 1) * w]))
+}
+
+/// [`box_sums`] of the plane whose row `y` `row(y, scratch)` gives (or, where it gives
+/// none, writes into `scratch`, a worker's row `w` long), each divided by `count`'s pixel
+/// where given: the same sums in the same order, without that plane or the sums held twice.
+pub(super) fn box_means<'a>(
+    w: usize,
+    r: usize,
+    rows: usize,
+    count: Option<&[f32]>,
+    row: impl Fn(usize, &mut [f32]) -> Option<&'a [f32]> + Sync,
+) -> Vec<f32> {
     let mut across = vec![0f32; w * rows];
-    // A running sum along each row, in f64, where its values are moderate: what leaves the
-    // window is then taken off to far below f32's rounding, and a huge or non-finite value
-    // (hostile input) cannot spoil the rest of the row, which is summed window by window.
-    // Rows are whole, so either way runs alike whatever `rows` is.
-    across.par_chunks_mut(w).zip(plane.par_chunks(w)).for_each(|(out, row)| {
-        if !row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT) {
+    across.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![0f32; w],
+        |scratch, (y, out)| {
+            let row = match row(y, scratch) {
+                Some(row) => row,
+                None => scratch,
+            };
+            // A running sum along each row, in f64, where its values are moderate: what
+            // leaves the window is then taken off to far below f32's rounding, and a huge
+            // or non-finite value (hostile input) cannot spoil the rest of the row, which
+            // is summed window by window. Rows are whole, so either way runs alike whatever
+            // `rows` is.
+            if !row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT) {
+                for (x, o) in out.iter_mut().enumerate() {
+                    *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
+                }
+                return;
+            }
+            let mut sum: f64 = row[..r.min(w)].iter().map(|&v| f64::from(v)).sum();
             for (x, o) in out.iter_mut().enumerate() {
-                *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
+                if x + r < w {
+                    sum += f64::from(row[x + r]);
+                }
+                if x > r {
+                    sum -= f64::from(row[x - r - 1]);
+                }
+                *o = sum as f32;
             }
-            return;
-        }
-        let mut sum: f64 = row[..r.min(w)].iter().map(|&v| f64::from(v)).sum();
-        for (x, o) in out.iter_mut().enumerate() {
-            if x + r < w {
-                sum += f64::from(row[x + r]);
-            }
-            if x > r {
-                sum -= f64::from(row[x - r - 1]);
-            }
-            *o = sum as f32;
-        }
-    });
+        },
+    );
     let mut out = vec![0f32; w * rows];
     out.par_chunks_mut(w).enumerate().for_each(|(k, o)| {
         for j in k.saturating_sub(r)..(k + r + 1).min(rows) {
             o.iter_mut().zip(&across[j * w..(j + 1) * w]).for_each(|(o, a)| *o += a);
+        }
+        if let Some(count) = count {
+            o.iter_mut().zip(&count[k * w..(k + 1) * w]).for_each(|(o, n)| *o /= n);
         }
     });
     out

@@ -8,7 +8,7 @@ use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 pub(super) use rows::window_offsets;
-use rows::{DenseScratch, Passes, Planes, SUMS, dense_row, sparse_runs, window_row_sums};
+use rows::{DenseScratch, Passes, Planes, SUMS, dense_row, lit_in_window_row, sparse_runs, window_row_sums};
 use std::ops::Range;
 
 /// Half the side of the window a pixel's similar neighbours are sought in (7×7).
@@ -93,10 +93,23 @@ impl DiffuseCeiling {
         let planes: Planes =
             [&mean, var, &d[0], &d[1], &d[2], &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
         ceiling.par_chunks_mut(3 * w).zip(rows).for_each_init(
-            || (Vec::new(), DenseScratch::default(), [(); SUMS].map(|_| vec![0f32; w])),
-            |(sparse, scratch, sums), (out, y)| {
+            || (Vec::new(), DenseScratch::default(), [(); SUMS].map(|_| vec![0f32; w]), Vec::new()),
+            |(sparse, scratch, sums, lit), (out, y)| {
                 sparse.clear();
                 dense_row(passes, &planes, w, h, y, errors, out, sparse, scratch);
+                // A sparse pixel whose 15×15 window holds fewer than SPARSE_HITS lit pixels
+                // has fewer alike ones that saw light, so no ceiling: known from a box count,
+                // without the window's similarity tests (most of a frame's dark background).
+                if !sparse.is_empty() {
+                    lit_in_window_row(&mean, w, h, y, SPARSE_RADIUS, lit);
+                    sparse.retain(|&x| {
+                        let measured = lit[x] as f32 >= SPARSE_HITS;
+                        if !measured {
+                            (0..3).for_each(|c| out[c * w + x] = f32::INFINITY);
+                        }
+                        measured
+                    });
+                }
                 // Where the 7×7 window is sparse, the 15×15 one, summed over the runs of
                 // such pixels.
                 for run in sparse_runs(sparse) {

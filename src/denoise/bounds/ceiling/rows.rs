@@ -222,6 +222,31 @@ pub(super) fn window_row_sums(
     });
 }
 
+/// How many pixels saw light (a mean d̃ other than 0; NaN counts, as in the window's
+/// sums) in the window of half-side `r` around each pixel of row `y` of the `w` × `h`
+/// plane `mean`, stopping at its edges: into `lit` (`w` long), from each column's count
+/// over the window's rows, slid along the row.
+pub(super) fn lit_in_window_row(mean: &[f32], w: usize, h: usize, y: usize, r: usize, lit: &mut Vec<u32>) {
+    let mut columns = vec![0u32; w];
+    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+        for (n, &m) in columns.iter_mut().zip(&mean[yy * w..(yy + 1) * w]) {
+            *n += u32::from(m != 0.0);
+        }
+    }
+    lit.clear();
+    lit.resize(w, 0);
+    let mut sum: u32 = columns[..r.min(w)].iter().sum();
+    for x in 0..w {
+        if x + r < w {
+            sum += columns[x + r];
+        }
+        lit[x] = sum;
+        if x >= r {
+            sum -= columns[x - r];
+        }
+    }
+}
+
 /// The runs of `sparse` (columns, ascending) to sum the wide window over: consecutive
 /// columns and those within a short gap of each other together, so that a row with a few
 /// sparse pixels at each end is not summed from one end to the other.
@@ -308,6 +333,33 @@ fn add_similar(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rows_lit_counts_are_its_windows_counted_one_by_one() {
+        // Zeros, NaNs (lit, as the window's sums count them) and values; windows cut by
+        // every edge, and a window wider than the plane.
+        let (w, h) = (13, 9);
+        let mean: Vec<f32> = (0..w * h)
+            .map(|i| match (i * 7 + i / w) % 5 {
+                0 | 1 => 0.0,
+                2 => f32::NAN,
+                3 => -0.0,
+                _ => 0.5,
+            })
+            .collect();
+        let (mean, mut lit) = (&mean, Vec::new());
+        for r in [1, 3, 7, 20] {
+            for y in 0..h {
+                lit_in_window_row(mean, w, h, y, r, &mut lit);
+                for (x, &got) in lit.iter().enumerate() {
+                    let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+                    let columns = x.saturating_sub(r)..(x + r + 1).min(w);
+                    let want = rows.flat_map(|yy| columns.clone().map(move |xx| mean[yy * w + xx]));
+                    assert_eq!(got, want.filter(|&m| m != 0.0).count() as u32, "r {r} ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn sparse_pixels_are_summed_in_runs_split_at_long_gaps() {
