@@ -104,7 +104,7 @@ pub enum Command {
     )]
     Study(study::StudyArgs),
     /// Seconds per frame of each model's forward pass (in process, model loaded, after a
-    /// warm-up) beside OIDN measured in the same run on the same rendered frame.
+    /// warm-up) beside OIDN measured the same way in the same run on the same rendered frame.
     #[command(after_help = "Examples:\n  kpcn speed\n  kpcn speed --models default,small,paper --resolution 1920x1080")]
     Speed(speed::SpeedArgs),
     /// Inspect model files or write an untrained one.

@@ -31,7 +31,7 @@ pub struct SpeedArgs {
     /// Scene family of the frame (`kpcn scenes` lists them).
     #[arg(long, default_value = "product")]
     pub family: String,
-    /// Timed runs per model after a warm-up; the fastest counts.
+    /// Timed runs per model, and of OIDN, after a warm-up on the frame; the fastest counts.
     #[arg(long, default_value_t = 3, value_name = "N")]
     pub repeat: usize,
     /// OIDN (hdr + albedo + normal, quality high, via `pyoidn`) as the peer.
@@ -68,7 +68,11 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
             .map(str::trim)
             .map(|m| Ok((m, Model::resolve(m)?)))
             .collect::<anyhow::Result<_>>()?;
-        println!("{}, fastest of {} after a warm-up; OIDN measured in the same run", desc.name, args.repeat.max(1));
+        println!(
+            "{}, fastest of {} after a warm-up, OIDN's the same way in the same run",
+            desc.name,
+            args.repeat.max(1)
+        );
         println!(
             "{:<11} {:>7} {:<24} {:>9} {:>9} {:>9} {:>9}",
             "frame", "threads", "method", "kFLOP/px", "seconds", "MPix/s", "× OIDN"
@@ -93,7 +97,7 @@ pub fn run(args: &SpeedArgs) -> anyhow::Result<()> {
                     rows.push((format!("kpcn {m}"), Some(flops / 1e3), secs));
                 }
                 let oidn_secs = if use_oidn {
-                    let (_, secs, _) = oidn(&k, &dir, threads)?;
+                    let (_, secs, _) = oidn(&k, &dir, threads, args.repeat)?;
                     rows.push(("oidn (high)".into(), None, secs));
                     Some(secs)
                 } else {
