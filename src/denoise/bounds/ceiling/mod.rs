@@ -362,8 +362,11 @@ mod tests {
         let (mut alike, mut variances) = (Vec::new(), Vec::new());
         let mut dense = 0;
         for passes in [Passes::avx2_or_not(), Passes::compiled()] {
+            // One scratch for every row, as a worker keeps it: what a row leaves in it must
+            // not reach the next.
+            let mut scratch = DenseScratch::default();
             for y in 0..h {
-                let (mut out, mut sparse, mut scratch) = (vec![-1.0; 3 * w], Vec::new(), DenseScratch::default());
+                let (mut out, mut sparse) = (vec![-1.0; 3 * w], Vec::new());
                 dense_row(passes, &planes, w, h, y, 2.0, &mut out, &mut sparse, &mut scratch);
                 for x in 0..w {
                     let got = [0, 1, 2].map(|c| out[c * w + x].to_bits());
