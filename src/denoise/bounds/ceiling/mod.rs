@@ -8,7 +8,7 @@ use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
 pub(super) use rows::window_offsets;
-use rows::{DenseScratch, Passes, Planes, SUMS, dense_row, lit_in_window_row, sparse_runs, window_row_sums};
+use rows::{DenseScratch, Passes, Planes, SUMS, column_runs, dense_row, lit_in_window_row, window_row_sums};
 use std::ops::Range;
 
 /// Half the side of the window a pixel's similar neighbours are sought in (7×7).
@@ -112,7 +112,7 @@ impl DiffuseCeiling {
                 }
                 // Where the 7×7 window is sparse, the 15×15 one, summed over the runs of
                 // such pixels.
-                for run in sparse_runs(sparse) {
+                for run in column_runs(sparse) {
                     window_row_sums(passes, &planes, w, h, y, SPARSE_RADIUS, run, sums);
                 }
                 let [count, variance, s0, s1, s2, hits] = &*sums;

@@ -58,12 +58,14 @@ pub(in crate::denoise::bounds) fn window_offsets(
 }
 
 /// Per worker, what [`dense_row`] gathers over a row: per pixel, its 7×7 window's lit
-/// pixels, its similar neighbours and the sums of their d̃; per offset of the window, the
-/// variance of each pixel's neighbour there where that neighbour is similar and its
-/// variance finite (else NaN); and the scratch of one pixel's median.
+/// pixels; the pixels whose window is not sparse; per pixel, its similar neighbours and the
+/// sums of their d̃; per offset of the window, the variance of each pixel's neighbour there
+/// where that neighbour is similar and its variance finite (else NaN); and the scratch of
+/// one pixel's median.
 #[derive(Default)]
 pub(super) struct DenseScratch {
-    lit: Vec<f32>,
+    lit: Vec<u32>,
+    dense: Vec<usize>,
     count: Vec<f32>,
     sums: [Vec<f32>; 3],
     chosen: Vec<f32>,
@@ -89,40 +91,44 @@ pub(super) fn dense_row(
 ) {
     let r = CEILING_RADIUS;
     let side = 2 * r + 1;
-    for plane in [&mut s.lit, &mut s.count].into_iter().chain(&mut s.sums) {
+    // Which windows are sparse, from a box count: the similarity tests then run only over
+    // the runs of pixels that are not (a room lit through an opening has few).
+    lit_in_window_row(planes[0], w, h, y, r, &mut s.lit);
+    let rows = y.saturating_sub(r)..(y + r + 1).min(h);
+    s.dense.clear();
+    for x in 0..w {
+        let pixels = (rows.len() * ((x + r + 1).min(w) - x.saturating_sub(r))) as f32;
+        if (s.lit[x] as f32) < LIT_SHARE * pixels { sparse.push(x) } else { s.dense.push(x) }
+    }
+    for plane in [&mut s.count].into_iter().chain(&mut s.sums) {
         plane.clear();
         plane.resize(w, 0.0);
     }
     s.chosen.clear();
     s.chosen.resize(side * side * w, f32::NAN);
     let centre = side * side / 2;
-    window_offsets((w, h), y, r, 0..w, |offset, xs, there| {
-        let here = planes.map(|p| &p[y * w..][xs.clone()]);
-        let there = planes.map(|p| &p[there..][..xs.len()]);
-        let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here;
-        let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there;
-        let [s0, s1, s2] = s.sums.each_mut().map(|p| &mut p[xs.clone()]);
-        (passes.dense)(
-            [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
-            [mj, vj, d0, d1, d2],
-            [a0j, a1j, a2j],
-            [n0j, n1j, n2j],
-            offset == centre,
-            &mut s.lit[xs.clone()],
-            &mut s.count[xs.clone()],
-            s0,
-            s1,
-            s2,
-            &mut s.chosen[offset * w..][xs],
-        );
-    });
-    let rows = y.saturating_sub(r)..(y + r + 1).min(h);
-    for x in 0..w {
-        let pixels = (rows.len() * ((x + r + 1).min(w) - x.saturating_sub(r))) as f32;
-        if s.lit[x] < LIT_SHARE * pixels {
-            sparse.push(x);
-            continue;
-        }
+    for run in column_runs(&s.dense) {
+        window_offsets((w, h), y, r, run, |offset, xs, there| {
+            let here = planes.map(|p| &p[y * w..][xs.clone()]);
+            let there = planes.map(|p| &p[there..][..xs.len()]);
+            let [mi, vi, _, _, _, a0i, a1i, a2i, n0i, n1i, n2i] = here;
+            let [mj, vj, d0, d1, d2, a0j, a1j, a2j, n0j, n1j, n2j] = there;
+            let [s0, s1, s2] = s.sums.each_mut().map(|p| &mut p[xs.clone()]);
+            (passes.dense)(
+                [mi, vi, a0i, a1i, a2i, n0i, n1i, n2i],
+                [mj, vj, d0, d1, d2],
+                [a0j, a1j, a2j],
+                [n0j, n1j, n2j],
+                offset == centre,
+                &mut s.count[xs.clone()],
+                s0,
+                s1,
+                s2,
+                &mut s.chosen[offset * w..][xs],
+            );
+        });
+    }
+    for &x in &s.dense {
         s.median.clear();
         s.median.extend((0..side * side).map(|o| s.chosen[o * w + x]).filter(|v| !v.is_nan()));
         let reach = errors * median(&mut s.median).max(0.0).sqrt();
@@ -135,9 +141,9 @@ pub(super) fn dense_row(
 avx2_or_compiled!(
     /// The similarity test of [`dense_row`] at one offset: for each pixel of `here` (mean d̃,
     /// its variance, albedo RGB, normal XYZ) and its neighbour at the same place in `there`
-    /// (mean d̃, its variance, d̃ RGB), `albedo` and `normal`, whether the neighbour saw light
-    /// (into `lit`) and is similar (into `count`, its d̃ into `s0`…`s2`, its variance into
-    /// `chosen`, where finite; else NaN). `centre`: the neighbour is the pixel itself.
+    /// (mean d̃, its variance, d̃ RGB), `albedo` and `normal`, whether the neighbour is similar
+    /// (into `count`, its d̃ into `s0`…`s2`, its variance into `chosen`, where finite; else
+    /// NaN). `centre`: the neighbour is the pixel itself.
     /// Branch-free, so that it vectorises.
     type AddDense;
     fn add_dense_avx2_or_not() = add_dense(
@@ -146,7 +152,6 @@ avx2_or_compiled!(
         albedo: [&[f32]; 3],
         normal: [&[f32]; 3],
         centre: bool,
-        lit: &mut [f32],
         count: &mut [f32],
         s0: &mut [f32],
         s1: &mut [f32],
@@ -165,7 +170,6 @@ fn add_dense(
     [a0j, a1j, a2j]: [&[f32]; 3],
     [n0j, n1j, n2j]: [&[f32]; 3],
     centre: bool,
-    lit: &mut [f32],
     count: &mut [f32],
     s0: &mut [f32],
     s1: &mut [f32],
@@ -177,13 +181,12 @@ fn add_dense(
         (&mi[..n], &vi[..n], &a0i[..n], &a1i[..n], &a2i[..n], &n0i[..n], &n1i[..n], &n2i[..n]);
     let (mj, vj, d0, d1, d2) = (&mj[..n], &vj[..n], &d0[..n], &d1[..n], &d2[..n]);
     let (a0j, a1j, a2j, n0j, n1j, n2j) = (&a0j[..n], &a1j[..n], &a2j[..n], &n0j[..n], &n1j[..n], &n2j[..n]);
-    let (lit, s0, s1, s2, chosen) = (&mut lit[..n], &mut s0[..n], &mut s1[..n], &mut s2[..n], &mut chosen[..n]);
+    let (s0, s1, s2, chosen) = (&mut s0[..n], &mut s1[..n], &mut s2[..n], &mut chosen[..n]);
     for k in 0..n {
         let alike = alike_differences(
             [a0j[k] - a0i[k], a1j[k] - a1i[k], a2j[k] - a2i[k]],
             [n0j[k] - n0i[k], n1j[k] - n1i[k], n2j[k] - n2i[k]],
         );
-        lit[k] += if mj[k] != 0.0 { 1.0 } else { 0.0 };
         let similar = alike & (centre | within_errors(mj[k] - mi[k], vj[k] + vi[k]));
         count[k] += if similar { 1.0 } else { 0.0 };
         // Selected, not multiplied: a neighbour that is not similar adds nothing, even an
@@ -247,15 +250,15 @@ pub(super) fn lit_in_window_row(mean: &[f32], w: usize, h: usize, y: usize, r: u
     }
 }
 
-/// The runs of `sparse` (columns, ascending) to sum the wide window over: consecutive
-/// columns and those within a short gap of each other together, so that a row with a few
-/// sparse pixels at each end is not summed from one end to the other.
-pub(super) fn sparse_runs(sparse: &[usize]) -> impl Iterator<Item = Range<usize>> + '_ {
+/// The runs of `columns` (ascending) to visit a window over: consecutive columns and those
+/// within a short gap of each other together, so that a row with a few such pixels at each
+/// end is not visited from one end to the other.
+pub(super) fn column_runs(columns: &[usize]) -> impl Iterator<Item = Range<usize>> + '_ {
     // Below this gap, one run costs less than two calls' set-up.
     const GAP: usize = 16;
-    let ends = sparse.windows(2).filter(|p| p[1] - p[0] > GAP).map(|p| (p[0] + 1, p[1]));
-    let starts = sparse.first().copied().into_iter().chain(ends.clone().map(|(_, start)| start));
-    let stops = ends.map(|(stop, _)| stop).chain(sparse.last().map(|&x| x + 1));
+    let ends = columns.windows(2).filter(|p| p[1] - p[0] > GAP).map(|p| (p[0] + 1, p[1]));
+    let starts = columns.first().copied().into_iter().chain(ends.clone().map(|(_, start)| start));
+    let stops = ends.map(|(stop, _)| stop).chain(columns.last().map(|&x| x + 1));
     starts.zip(stops).map(|(a, b)| a..b)
 }
 
@@ -362,8 +365,8 @@ mod tests {
     }
 
     #[test]
-    fn sparse_pixels_are_summed_in_runs_split_at_long_gaps() {
-        let runs = |sparse: &[usize]| sparse_runs(sparse).collect::<Vec<_>>();
+    fn columns_are_visited_in_runs_split_at_long_gaps() {
+        let runs = |columns: &[usize]| column_runs(columns).collect::<Vec<_>>();
         assert_eq!(runs(&[]), Vec::<Range<usize>>::new());
         assert_eq!(runs(&[5]), vec![5..6]);
         // Gaps of up to 16 columns stay in one run; a longer one splits it.
