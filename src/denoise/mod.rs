@@ -11,6 +11,7 @@ use crate::kernel;
 use crate::model::{Design, Exposure, Kind, Model, ModelError, Specular};
 use crate::tile::{self, Tile};
 use candle_core::{Device, Tensor};
+use rayon::prelude::*;
 use std::borrow::Cow;
 
 mod bands;
@@ -405,7 +406,9 @@ impl Denoiser {
             Some(take.spread(w, bounds.spread?))
         });
         self.pool.install(|| bounds.restore_detail(w, &mut d_hat));
-        let d = recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds, glow.as_ref());
+        let d = self.pool.install(|| {
+            recompose(&albedo, d_hat, &s_hat, (w, h), self.model.arch.specular, f.exposure, &bounds, glow.as_ref())
+        });
         Ok(if h == rows.len() { d } else { d.rows(rows.start - y0..rows.end - y0) })
     }
 
@@ -516,17 +519,18 @@ fn recompose(
 ) -> Denoised {
     // Division by exactly 1 changes nothing, so raw models keep their images bit for bit.
     let diffuse: [Vec<f32>; 3] = std::array::from_fn(|c| {
-        let radiance = d_hat[c].iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d));
+        let radiance = d_hat[c].par_iter().zip(&albedo[c]).map(|(d, a)| sanitize((a + EPSILON) * d));
         match glow {
             Some(g) => radiance.zip(&g[c]).map(|(d, g)| sanitize(sanitize(d + g) / exposure)).collect(),
             None => radiance.map(|d| sanitize(d / exposure)).collect(),
         }
     });
-    let mut specular: [Vec<f32>; 3] = std::array::from_fn(|c| s_hat[c].iter().map(|&s| domain.radiance(s)).collect());
+    let mut specular: [Vec<f32>; 3] =
+        std::array::from_fn(|c| s_hat[c].par_iter().map(|&s| domain.radiance(s)).collect());
     if let Some(b) = &bounds.specular {
         b.apply(&mut specular);
     }
-    specular.iter_mut().for_each(|p| p.iter_mut().for_each(|s| *s = sanitize(*s / exposure)));
-    let color = std::array::from_fn(|c| diffuse[c].iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
+    specular.iter_mut().for_each(|p| p.par_iter_mut().for_each(|s| *s = sanitize(*s / exposure)));
+    let color = std::array::from_fn(|c| diffuse[c].par_iter().zip(&specular[c]).map(|(d, s)| d + s).collect());
     Denoised { width: w, height: h, color, diffuse, specular }
 }

@@ -152,7 +152,9 @@ impl<'a> FrameStream<'a> {
             add_detail(&mut d_hat, &detail);
         }
         let domain = self.denoiser.model.arch.specular;
-        let mut d = recompose(&albedo, d_hat, &s_hat, (w, band.len()), domain, self.exposure, &bounds, glow.as_ref());
+        let mut d = self.denoiser.pool.install(|| {
+            recompose(&albedo, d_hat, &s_hat, (w, band.len()), domain, self.exposure, &bounds, glow.as_ref())
+        });
         d.carry(&remainder);
         Some((band, d))
     }

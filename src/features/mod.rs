@@ -8,6 +8,7 @@
 use crate::io::layout::KpcnInputs;
 use rayon::prelude::*;
 use std::borrow::Cow;
+use std::ops::Range;
 
 mod exposure;
 mod repairs;
@@ -181,6 +182,68 @@ fn grad_at(p: &[f32], w: usize, x: usize, y: usize, along_x: bool) -> f32 {
     sanitize(g)
 }
 
+/// [`grad_at`] of frame columns `span` of row `y` of `p` (`w` wide), into `out`: a
+/// slice at a time, so that it vectorises.
+fn gradient_row(p: &[f32], w: usize, y: usize, along_x: bool, span: Range<usize>, out: &mut Vec<f32>) {
+    out.clear();
+    let row = &p[y * w..][..w];
+    let (from, to) = match (along_x, y) {
+        (true, _) => (&row[span.start.max(1)..span.end], &row[span.start.max(1) - 1..span.end - 1]),
+        (false, 0) => return out.resize(span.len(), 0.0),
+        (false, _) => (&row[span.clone()], &p[(y - 1) * w..][span.clone()]),
+    };
+    if along_x && span.start == 0 && !span.is_empty() {
+        out.push(0.0);
+    }
+    out.extend(from.iter().zip(to).map(|(a, b)| sanitize(a - b)));
+}
+
+/// A region's columns reflected into the frame, as runs of consecutive frame columns
+/// (up or down): a region past the frame's sides is three runs, which copy a slice at a
+/// time instead of a column at a time.
+pub(crate) struct Columns {
+    /// `(first region column, first frame column, length, ascending)`.
+    runs: Vec<(usize, usize, usize, bool)>,
+    /// The frame columns the region reads.
+    span: Range<usize>,
+}
+
+impl Columns {
+    /// The runs of `xs`, the frame column of each region column.
+    fn new(xs: impl Iterator<Item = usize>) -> Columns {
+        let mut runs: Vec<(usize, usize, usize, bool)> = Vec::new();
+        let (mut lo, mut hi, mut at) = (usize::MAX, 0, 0);
+        for x in xs {
+            (lo, hi) = (lo.min(x), hi.max(x + 1));
+            match runs.last_mut() {
+                Some((_, first, len, up)) if *len == 1 && first.abs_diff(x) == 1 => (*len, *up) = (2, x > *first),
+                Some((_, first, len, true)) if *first + *len == x => *len += 1,
+                Some((_, first, len, false)) if first.checked_sub(*len) == Some(x) => *len += 1,
+                _ => runs.push((at, x, 1, true)),
+            }
+            at += 1;
+        }
+        Columns { runs, span: lo.min(hi)..hi }
+    }
+
+    /// The frame columns read.
+    fn span(&self) -> Range<usize> {
+        self.span.clone()
+    }
+
+    /// `row` from `src`, a frame row's columns from `from` on.
+    fn gather(&self, row: &mut [f32], src: &[f32], from: usize) {
+        for &(at, x, len, up) in &self.runs {
+            let out = &mut row[at..at + len];
+            if up {
+                out.copy_from_slice(&src[x - from..][..len]);
+            } else {
+                out.iter_mut().zip(src[x + 1 - len - from..=x - from].iter().rev()).for_each(|(o, &v)| *o = v);
+            }
+        }
+    }
+}
+
 /// The largest finite depth (0 when none is positive): depth is divided by it.
 pub fn max_depth(depth: &[f32]) -> f32 {
     depth.iter().fold(0f32, |m, &d| m.max(sanitize(d)))
@@ -298,17 +361,14 @@ impl Features {
     /// Planes of region (`x0`, `y0`, `w`×`h`) — which may extend past the frame, reflected —
     /// as CHW, one plane per source.
     pub fn region(&self, planes: &[&[f32]], x0: isize, y0: isize, w: usize, h: usize) -> Vec<f32> {
-        self.rows(planes.len(), x0, y0, w, h, |i, fy, xs, row| {
-            let src = &planes[i][fy * self.width..][..self.width];
-            for (v, &x) in row.iter_mut().zip(xs) {
-                *v = src[x];
-            }
+        self.rows(planes.len(), x0, y0, w, h, |i, fy, columns, row, _| {
+            columns.gather(row, &planes[i][fy * self.width..][..self.width], 0);
         })
     }
 
     /// `planes` planes of the region (`x0`, `y0`, `w`×`h`), rows in parallel: each row
-    /// filled by `fill(plane, frame row, frame columns, row)` with the region's rows and
-    /// columns reflected into the frame.
+    /// filled by `fill(plane, frame row, columns, row, scratch)` with the region's rows
+    /// and columns ([`Columns`]) reflected into the frame.
     fn rows(
         &self,
         planes: usize,
@@ -316,14 +376,16 @@ impl Features {
         y0: isize,
         w: usize,
         h: usize,
-        fill: impl Fn(usize, usize, &[usize], &mut [f32]) + Sync,
+        fill: impl Fn(usize, usize, &Columns, &mut [f32], &mut Vec<f32>) + Sync,
     ) -> Vec<f32> {
-        let mut out = vec![0f32; planes * w * h];
+        // From the pool: a stream's inputs come a few rows at a time, and a fresh buffer's
+        // pages are zeroed by the kernel on first touch.
+        let mut out = crate::kernel::buffers::zeroed(planes * w * h);
         if w > 0 && h > 0 {
-            let xs: Vec<usize> = (0..w).map(|x| reflect(x0 + x as isize, self.width)).collect();
-            out.par_chunks_mut(w)
-                .enumerate()
-                .for_each(|(i, row)| fill(i / h, reflect(y0 + (i % h) as isize, self.height), &xs, row));
+            let columns = Columns::new((0..w).map(|x| reflect(x0 + x as isize, self.width)));
+            out.par_chunks_mut(w).enumerate().for_each_init(Vec::new, |scratch, (i, row)| {
+                fill(i / h, reflect(y0 + (i % h) as isize, self.height), &columns, row, scratch)
+            });
         }
         out
     }
@@ -359,13 +421,14 @@ impl Features {
         let guides = self.guides(b);
         let variances = self.variances(b);
         let fw = self.width;
-        let out = self.rows(INPUT_CHANNELS, x0, y0, w, h, |i, fy, xs, row| match i {
-            0..3 => row.iter_mut().zip(xs).for_each(|(v, &x)| *v = guides[i][fy * fw + x]),
+        let out = self.rows(INPUT_CHANNELS, x0, y0, w, h, |i, fy, columns, row, scratch| match i {
+            0..3 => columns.gather(row, &guides[i][fy * fw..][..fw], 0),
             3..23 => {
                 let (g, along_x) = (guides[(i - 3) % 10], i < 13);
-                row.iter_mut().zip(xs).for_each(|(v, &x)| *v = grad_at(g, fw, x, fy, along_x));
+                gradient_row(g, fw, fy, along_x, columns.span(), scratch);
+                columns.gather(row, scratch, columns.span().start);
             }
-            _ => row.iter_mut().zip(xs).for_each(|(v, &x)| *v = variances[i - 23][fy * fw + x]),
+            _ => columns.gather(row, &variances[i - 23][fy * fw..][..fw], 0),
         });
         debug_assert_eq!(out.len(), INPUT_CHANNELS * w * h);
         out
@@ -452,6 +515,46 @@ pub(crate) mod tests {
     fn planes(f: &Features, b: Branch) -> Vec<Vec<f32>> {
         let n = f.width * f.height;
         f.branch_input(b, 0, 0, f.width, f.height).chunks(n).map(<[f32]>::to_vec).collect()
+    }
+
+    #[test]
+    fn columns_gather_as_a_column_by_column_reflection_would() {
+        for fw in [1, 2, 5, 40] {
+            let src: Vec<f32> = (0..fw).map(|x| x as f32 * 1.5 - 7.0).collect();
+            for (x0, w) in [(-50, 130), (-3, 46), (0, fw), (2, 1), (-1, 3), (7, 9)] {
+                let xs: Vec<usize> = (0..w).map(|x| reflect(x0 + x as isize, fw)).collect();
+                let columns = Columns::new(xs.iter().copied());
+                let mut row = vec![f32::NAN; w];
+                columns.gather(&mut row, &src, 0);
+                let want: Vec<f32> = xs.iter().map(|&x| src[x]).collect();
+                assert_eq!(row, want, "frame {fw} wide, region {x0} + {w}");
+                assert_eq!(columns.span(), *xs.iter().min().unwrap()..xs.iter().max().unwrap() + 1);
+                // Gathered from the span alone, as the gradients are.
+                let span = columns.span();
+                columns.gather(&mut row, &src[span.clone()], span.start);
+                assert_eq!(row, want, "frame {fw} wide, region {x0} + {w}, from its span");
+            }
+        }
+        // A region past both sides of a frame is three runs: down, up, down.
+        let columns = Columns::new((0..46).map(|x| reflect(x - 3, 40)));
+        assert_eq!(columns.runs.len(), 3);
+    }
+
+    #[test]
+    fn gradient_rows_are_the_gradients_pixel_by_pixel() {
+        let (w, h) = (9, 4);
+        let hostile = [f32::NAN, f32::INFINITY, -1e30, 1e30];
+        let p: Vec<f32> = (0..w * h).map(|i| if i % 11 == 5 { hostile[i % 4] } else { (i * 7 % 13) as f32 }).collect();
+        let mut out = Vec::new();
+        for y in 0..h {
+            for along_x in [true, false] {
+                for span in [0..w, 0..1, 1..w, 3..6] {
+                    gradient_row(&p, w, y, along_x, span.clone(), &mut out);
+                    let want: Vec<f32> = span.clone().map(|x| grad_at(&p, w, x, y, along_x)).collect();
+                    assert_eq!(out, want, "row {y}, along x {along_x}, columns {span:?}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -222,8 +222,9 @@ impl Planes {
         let h = self.h;
         self.data.par_chunks_mut(self.w).enumerate().for_each(|(i, row)| {
             let s = coarse.row(i / h, i % h / 2);
-            for (x, v) in row.iter_mut().enumerate() {
-                *v += s[x / 2];
+            for (pair, &c) in row.chunks_exact_mut(2).zip(s) {
+                pair[0] += c;
+                pair[1] += c;
             }
         });
     }

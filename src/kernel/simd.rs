@@ -65,11 +65,11 @@ impl Isa {
 /// where the CPU has them (twice the lanes of the baseline's SSE2), else `$plain` as
 /// compiled.
 macro_rules! avx2_or_compiled {
-    ($(#[$tmeta:meta])* type $ty:ident; fn $pick:ident() = $plain:ident($($arg:ident: $argty:ty),* $(,)?)) => {
+    ($(#[$tmeta:meta])* $vis:vis type $ty:ident; $pvis:vis fn $pick:ident() = $plain:ident($($arg:ident: $argty:ty),* $(,)?)) => {
         $(#[$tmeta])*
-        type $ty = fn($($argty),*);
+        $vis type $ty = fn($($argty),*);
 
-        fn $pick() -> $ty {
+        $pvis fn $pick() -> $ty {
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
                 /// `$plain` compiled for AVX2 and FMA.

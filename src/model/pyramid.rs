@@ -7,7 +7,7 @@
 use super::multiscale::{self, Backend};
 use super::{Architecture, BranchWeights, ModelError, ScaleBlend};
 use crate::features::INPUT_CHANNELS;
-use crate::kernel::conv::{ConvLayer, conv, conv_up_concat};
+use crate::kernel::conv::{ConvLayer, conv, conv_rows, conv_up_concat};
 use crate::kernel::planes::{Planes, add_blended, blend};
 use rayon::prelude::*;
 
@@ -89,6 +89,24 @@ pub fn forward(
 pub(super) struct Region<'a> {
     pub(super) arch: &'a Architecture,
     pub(super) weights: &'a Weights,
+}
+
+impl Region<'_> {
+    /// Rows `out` of [`Backend::conv`] (or, where layer `layer` is not the split head,
+    /// [`Backend::conv_up_concat`]) of `w × h` planes that are never built: `row_of`
+    /// writes their rows ([`conv_rows`]). `None` for the split head, which has no one
+    /// layer to run.
+    pub(super) fn conv_rows(
+        &self,
+        layer: usize,
+        relu: bool,
+        size: (usize, usize),
+        out: std::ops::Range<usize>,
+        row_of: impl Fn(usize, usize, &mut [f32]) + Sync,
+    ) -> Option<Planes> {
+        let layer = self.weights.layers.get(layer).filter(|_| layer + 1 < self.weights.layers.len())?;
+        Some(conv_rows(layer, relu, size, out, row_of))
+    }
 }
 
 impl Backend for Region<'_> {

@@ -16,6 +16,7 @@ use super::multiscale::{self, Backend};
 use super::pyramid::{Region, Weights, apply_rows, blend_scales};
 use crate::kernel::buffers;
 use crate::kernel::planes::Planes;
+use std::borrow::Cow;
 use std::cell::RefCell;
 use std::collections::VecDeque;
 
@@ -87,9 +88,14 @@ struct Store {
 }
 
 impl Store {
-    /// Rows `[lo, hi)`, copied into one block (appended, never zeroed first: the chunks
-    /// hold consecutive rows, and `from_vec` checks that every row came).
-    fn rows(&self, lo: usize, hi: usize) -> Planes {
+    /// Rows `[lo, hi)`: the chunk that holds just them, or a copy into one block
+    /// (appended, never zeroed first: the chunks hold consecutive rows, and `from_vec`
+    /// checks that every row came). Operations stepping alike read their input's chunks
+    /// whole, without copies.
+    fn rows(&self, lo: usize, hi: usize) -> Cow<'_, Planes> {
+        if let Some((_, p)) = self.chunks.iter().find(|(s, p)| *s == lo && s + p.h == hi) {
+            return Cow::Borrowed(p);
+        }
         let first = &self.chunks.front().expect("rows are held before they are read").1;
         let (c, w) = (first.c, first.w);
         debug_assert!(self.chunks.front().is_some_and(|(s, _)| *s <= lo), "row {lo} was dropped");
@@ -102,7 +108,24 @@ impl Store {
                 }
             }
         }
-        Planes::from_vec(c, w, hi - lo, data)
+        Cow::Owned(Planes::from_vec(c, w, hi - lo, data))
+    }
+
+    /// Row `y` of channel `ch`, where one chunk holds it.
+    fn row(&self, ch: usize, y: usize) -> &[f32] {
+        let (start, p) =
+            self.chunks.iter().find(|(s, p)| (*s..s + p.h).contains(&y)).expect("rows are held before they are read");
+        &p.data[(ch * p.h + y - start) * p.w..][..p.w]
+    }
+
+    /// The width of the rows held.
+    fn width(&self) -> usize {
+        self.chunks.front().map_or(0, |(_, p)| p.w)
+    }
+
+    /// The channels of the rows held.
+    fn channels(&self) -> usize {
+        self.chunks.front().map_or(0, |(_, p)| p.c)
     }
 
     /// Drops the chunks wholly above row `row`.
@@ -243,7 +266,7 @@ impl<'a> Stream<'a> {
         if done == self.taken {
             return None;
         }
-        let rows = self.nodes[self.out].store.rows(self.taken, done);
+        let rows = self.nodes[self.out].store.rows(self.taken, done).into_owned();
         let first = std::mem::replace(&mut self.taken, done);
         self.nodes[self.out].store.drop_below(done);
         Some((first, rows))
@@ -371,14 +394,14 @@ impl<'a> Stream<'a> {
         }
         let b = (a + self.step.max(grid)).min(target);
         let (noisy, lo) = match self.needs(i, a, b)[..] {
-            [(j, lo, hi)] => (self.nodes[j].store.rows(lo, hi), lo),
+            [(j, lo, hi)] => (self.nodes[j].store.rows(lo, hi).into_owned(), lo),
             _ => unreachable!("the colour reads the noisy colour"),
         };
         let levels = multiscale::colour_pyramid(noisy, self.arch.layers, self.arch.clamp);
         let scales = (0..self.nodes.len()).filter(|&j| matches!(self.nodes[j].op, Op::Colour { .. }));
         for (j, level) in scales.collect::<Vec<_>>().into_iter().zip(levels) {
             let s = self.nodes[j].level;
-            let rows = crop(&level, (a - lo) >> s, (b - lo) >> s);
+            let rows = crop(level, (a - lo) >> s, (b - lo) >> s);
             let n = &mut self.nodes[j];
             n.store.chunks.push_back((a >> s, rows));
             n.done = b >> s;
@@ -415,35 +438,52 @@ impl<'a> Stream<'a> {
         };
         match self.nodes[i].op {
             Op::Source => unreachable!("sources are pushed"),
-            Op::Conv { layer, relu, .. } => {
-                let (x, lo) = window(0);
-                crop(&ok(r.conv(&x, layer, relu)), a - lo, b - lo)
+            // Convolutions read their window's rows where the store holds them and compute
+            // just rows [a, b): the window's context rows cost no multiply-adds.
+            Op::Conv { x, layer, relu } => {
+                let (_, lo, hi) = needs[0];
+                let x = &self.nodes[x].store;
+                let row_of = |ch: usize, y: usize, dst: &mut [f32]| dst.copy_from_slice(x.row(ch, lo + y));
+                match r.conv_rows(layer, relu, (x.width(), hi - lo), a - lo..b - lo, row_of) {
+                    Some(rows) => rows,
+                    None => unreachable!("the split head is an up-concat"),
+                }
             }
             Op::Pool { .. } => ok(r.pool(&window(0).0)),
-            Op::UpConcat { layer, relu, .. } => {
-                let ((skip, lo), (coarse, _)) = (window(0), window(1));
-                crop(&ok(r.conv_up_concat(&coarse, &skip, layer, relu)), a - lo, b - lo)
+            Op::UpConcat { coarse, skip, layer, relu } => {
+                let (_, lo, hi) = needs[0];
+                let (coarse, skip) = (&self.nodes[coarse].store, &self.nodes[skip].store);
+                let cc = coarse.channels();
+                // A coarse row is two fine ones; `lo` is even (see `even_window`).
+                let row_of = |ch: usize, y: usize, dst: &mut [f32]| {
+                    if ch < cc {
+                        for (pair, &v) in dst.chunks_mut(2).zip(coarse.row(ch, (lo + y) / 2)) {
+                            pair.fill(v);
+                        }
+                    } else {
+                        dst.copy_from_slice(skip.row(ch - cc, lo + y));
+                    }
+                };
+                match r.conv_rows(layer, relu, (skip.width(), hi - lo), a - lo..b - lo, row_of) {
+                    Some(rows) => rows,
+                    // The full-resolution head: 1×1, so its window is its rows.
+                    None => {
+                        let ((skip, lo), (coarse, _)) = (window(0), window(1));
+                        crop(ok(r.conv_up_concat(&coarse, &skip, layer, relu)), a - lo, b - lo)
+                    }
+                }
             }
             Op::Colour { .. } => unreachable!("the colour pyramid is advanced whole"),
             Op::Apply { colour, .. } => {
                 let logits = window(0).0;
                 let store = &self.nodes[colour].store;
-                let (w, h) = (logits.w, self.height(colour));
-                let (lo, hi) = (needs[1].1, needs[1].2);
-                let held = store.rows(lo, hi);
-                apply_rows(
-                    &logits,
-                    &|c, y| &held.data[(c * (hi - lo) + y - lo) * w..][..w],
-                    a,
-                    h,
-                    self.arch.kernel_size,
-                )
+                apply_rows(&logits, &|c, y| store.row(c, y), a, self.height(colour), self.arch.kernel_size)
             }
             Op::Sub { .. } => ok(r.sub(&window(0).0, &window(1).0)),
             Op::Blend { .. } => {
-                let (mut fine, logits, (coarse, lo)) = (window(0).0, window(1).0, window(2));
+                let (mut fine, logits, (coarse, lo)) = (window(0).0.into_owned(), window(1).0, window(2));
                 let up = coarse.up_bilinear();
-                let up = crop(&up, a - 2 * lo, b - 2 * lo);
+                let up = crop(up, a - 2 * lo, b - 2 * lo);
                 blend_scales(self.arch, &mut fine, &up, &logits);
                 fine
             }
@@ -465,9 +505,9 @@ fn inputs(op: &Op) -> Vec<usize> {
 }
 
 /// Rows `[a, b)` of `p`.
-fn crop(p: &Planes, a: usize, b: usize) -> Planes {
+fn crop(p: Planes, a: usize, b: usize) -> Planes {
     if a == 0 && b == p.h {
-        return p.clone();
+        return p;
     }
     let w = p.w;
     let mut data = buffers::with_capacity(p.c * w * (b - a));

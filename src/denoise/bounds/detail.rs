@@ -8,6 +8,7 @@
 //! normal), is the detail, and the noise, which does not follow the normals, stays out.
 
 use super::{BandPlanes, box_means};
+use crate::kernel::avx2_or_compiled;
 use rayon::prelude::*;
 
 /// Added to the normals' covariance over a window before it is inverted: where the normals
@@ -102,37 +103,32 @@ fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
     // residual.
     let gg: Vec<Vec<f32>> = PAIRS.iter().map(|&(j, k)| mean_product(&normal[j], &normal[k])).collect();
     let ge: Vec<Vec<f32>> = (0..9).map(|i| mean_product(&normal[i / 3], &residual[i % 3])).collect();
-    // Each window's slopes: fit[j * 3 + c] is the residual's channel c per unit of
-    // normal component j.
+    // Each window's slopes, row by row: plane j * 3 + c of row y's block is the
+    // residual's channel c per unit of normal component j.
     let n = w * rows;
-    let fit = |i: usize| -> [f32; 9] {
-        let at = |p: &[Vec<f32>], k: usize| f64::from(p[k][i]);
-        let mut c = [[0f64; 3]; 3];
-        for (p, &(j, k)) in PAIRS.iter().enumerate() {
-            let v = at(&gg, p) - at(&g, j) * at(&g, k) + if j == k { f64::from(RIDGE) } else { 0.0 };
-            (c[j][k], c[k][j]) = (v, v);
-        }
-        let inverse = invert(&c);
-        let mut out = [0f32; 9];
-        for ch in 0..3 {
-            let b: [f64; 3] = std::array::from_fn(|j| at(&ge, j * 3 + ch) - at(&g, j) * at(&e, ch));
-            for j in 0..3 {
-                out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
-            }
-        }
-        out
-    };
-    let fits: Vec<[f32; 9]> = (0..n).into_par_iter().map(fit).collect();
+    let (fit, ridge) = (fit_slopes_avx2_or_not(), f64::from(RIDGE));
+    let mut fits = vec![0f32; 9 * n];
+    fits.par_chunks_mut(9 * w).enumerate().for_each(|(y, block)| {
+        let at = y * w..(y + 1) * w;
+        let mut rest = block;
+        let out: [&mut [f32]; 9] = std::array::from_fn(|_| {
+            let (plane, tail) = std::mem::take(&mut rest).split_at_mut(w);
+            rest = tail;
+            plane
+        });
+        fit(
+            std::array::from_fn(|j| &g[j][at.clone()]),
+            std::array::from_fn(|c| &e[c][at.clone()]),
+            std::array::from_fn(|p| &gg[p][at.clone()]),
+            std::array::from_fn(|i| &ge[i][at.clone()]),
+            ridge,
+            out,
+        );
+    });
     drop((e, gg, ge));
     // The mean over the windows around each pixel of their slopes, one plane at a time.
-    let slope: Vec<Vec<f32>> = (0..9)
-        .map(|k| {
-            box_means(w, r, rows, Some(&count), |y, scratch| {
-                scratch.iter_mut().zip(&fits[y * w..(y + 1) * w]).for_each(|(s, f)| *s = f[k]);
-                None
-            })
-        })
-        .collect();
+    let slope: Vec<Vec<f32>> =
+        (0..9).map(|k| box_means(w, r, rows, Some(&count), |y, _| Some(&fits[(9 * y + k) * w..][..w]))).collect();
     drop(fits);
     std::array::from_fn(|ch| {
         (0..n)
@@ -161,19 +157,52 @@ fn window_counts(w: usize, r: usize, rows: usize) -> Vec<f32> {
 /// The normal components' pairs (j ≤ k) whose products a window's covariance needs.
 const PAIRS: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
 
-/// The inverse of a symmetric 3×3 matrix that the ridge keeps positive definite (by its
-/// cofactors); zeros where it is not finite.
-fn invert(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let cof = |r: usize, c: usize| {
-        let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
-        let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
-        m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
-    };
-    let det = (0..3).map(|c| m[0][c] * cof(0, c)).sum::<f64>();
-    if !(det.is_finite() && det > 0.0) {
-        return [[0.0; 3]; 3];
+avx2_or_compiled!(
+    /// [`fit_slopes`], chosen once per restore.
+    type FitSlopes;
+    fn fit_slopes_avx2_or_not() = fit_slopes(
+        g: [&[f32]; 3],
+        e: [&[f32]; 3],
+        gg: [&[f32]; 6],
+        ge: [&[f32]; 9],
+        ridge: f64,
+        out: [&mut [f32]; 9],
+    )
+);
+
+/// Each pixel's window's slopes from its window's means (`g` of the normal's components,
+/// `e` of the residual's channels, `gg` of the normals' products in [`PAIRS`]' order,
+/// `ge` of normal j times residual c at j · 3 + c): the normals' covariance, `ridge`
+/// added to its diagonal, inverted by its cofactors (zero where its determinant is not
+/// finite and positive), times the covariance of normals and residual; slope j · 3 + c
+/// into `out`. In f64, one pixel after another along the slices, in an order the
+/// compiler vectorises.
+#[inline(always)]
+fn fit_slopes(g: [&[f32]; 3], e: [&[f32]; 3], gg: [&[f32]; 6], ge: [&[f32]; 9], ridge: f64, out: [&mut [f32]; 9]) {
+    for i in 0..out[0].len() {
+        let g: [f64; 3] = g.map(|p| f64::from(p[i]));
+        let mut c = [[0f64; 3]; 3];
+        for (p, &(j, k)) in PAIRS.iter().enumerate() {
+            let v = f64::from(gg[p][i]) - g[j] * g[k] + if j == k { ridge } else { 0.0 };
+            (c[j][k], c[k][j]) = (v, v);
+        }
+        let cof = |r: usize, q: usize| {
+            let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+            let (q0, q1) = ((q + 1) % 3, (q + 2) % 3);
+            c[r0][q0] * c[r1][q1] - c[r0][q1] * c[r1][q0]
+        };
+        let det = (c[0][0] * cof(0, 0) + c[0][1] * cof(0, 1)) + c[0][2] * cof(0, 2);
+        let invertible = det.is_finite() && det > 0.0;
+        let inverse: [[f64; 3]; 3] =
+            std::array::from_fn(|r| std::array::from_fn(|q| if invertible { cof(q, r) / det } else { 0.0 }));
+        for ch in 0..3 {
+            let e = f64::from(e[ch][i]);
+            let b: [f64; 3] = std::array::from_fn(|j| f64::from(ge[j * 3 + ch][i]) - g[j] * e);
+            for j in 0..3 {
+                out[j * 3 + ch][i] = ((inverse[j][0] * b[0] + inverse[j][1] * b[1]) + inverse[j][2] * b[2]) as f32;
+            }
+        }
     }
-    std::array::from_fn(|r| std::array::from_fn(|c| cof(c, r) / det))
 }
 
 #[cfg(test)]
@@ -202,6 +231,90 @@ mod tests {
 
     fn squared_error(a: &[f32], b: &[f32]) -> f64 {
         a.iter().zip(b).map(|(a, b)| f64::from(a - b).powi(2)).sum()
+    }
+
+    /// The inverse of a symmetric 3×3 matrix by its cofactors; zeros where its
+    /// determinant is not finite and positive.
+    fn invert(m: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+        let cof = |r: usize, c: usize| {
+            let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+            let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
+            m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0]
+        };
+        let det = (0..3).map(|c| m[0][c] * cof(0, c)).sum::<f64>();
+        if !(det.is_finite() && det > 0.0) {
+            return [[0.0; 3]; 3];
+        }
+        std::array::from_fn(|r| std::array::from_fn(|c| cof(c, r) / det))
+    }
+
+    /// One pixel's slopes from its window's means, in the order [`fit_slopes`] documents:
+    /// what the vectorised loop must give, bit for bit.
+    fn fit_pixel(g: [f32; 3], e: [f32; 3], gg: [f32; 6], ge: [f32; 9]) -> [f32; 9] {
+        let mut c = [[0f64; 3]; 3];
+        for (p, &(j, k)) in PAIRS.iter().enumerate() {
+            let v = f64::from(gg[p]) - f64::from(g[j]) * f64::from(g[k]) + if j == k { f64::from(RIDGE) } else { 0.0 };
+            (c[j][k], c[k][j]) = (v, v);
+        }
+        let inverse = invert(&c);
+        let mut out = [0f32; 9];
+        for ch in 0..3 {
+            let b: [f64; 3] = std::array::from_fn(|j| f64::from(ge[j * 3 + ch]) - f64::from(g[j]) * f64::from(e[ch]));
+            for j in 0..3 {
+                out[j * 3 + ch] = (0..3).map(|k| inverse[j][k] * b[k]).sum::<f64>() as f32;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn slopes_are_each_pixels_fit_bit_for_bit() {
+        // Moments of real windows, of flat ones (only the ridge keeps them invertible), of
+        // impossible ones (a negative variance: no inverse) and of non-finite ones.
+        let n = 203;
+        let mut rng = crate::rng::SplitMix64(21);
+        let mut planes: [Vec<f32>; 21] = std::array::from_fn(|_| Vec::with_capacity(n));
+        for i in 0..n {
+            let g: [f32; 3] = std::array::from_fn(|_| rng.uniform_f32() - 0.5);
+            let e: [f32; 3] = std::array::from_fn(|_| rng.uniform_f32() * 2.0);
+            let spread = match i % 4 {
+                0 => 0.0,
+                1 => -0.5,
+                _ => rng.uniform_f32() * 0.2,
+            };
+            let gg: [f32; 6] = PAIRS.map(|(j, k)| g[j] * g[k] + if j == k { spread } else { spread * 0.3 });
+            let ge: [f32; 9] = std::array::from_fn(|q| g[q / 3] * e[q % 3] + rng.uniform_f32() * 0.01);
+            let mut all: Vec<f32> = g.into_iter().chain(e).chain(gg).chain(ge).collect();
+            if i % 17 == 5 {
+                all[i % 21] = [f32::NAN, f32::INFINITY][i % 2];
+            }
+            planes.iter_mut().zip(all).for_each(|(p, v)| p.push(v));
+        }
+        for fit in [fit_slopes_avx2_or_not(), fit_slopes as FitSlopes] {
+            let mut out: [Vec<f32>; 9] = std::array::from_fn(|_| vec![0f32; n]);
+            let [o0, o1, o2, o3, o4, o5, o6, o7, o8] = &mut out;
+            let p = |k: usize| planes[k].as_slice();
+            fit(
+                std::array::from_fn(p),
+                std::array::from_fn(|c| p(3 + c)),
+                std::array::from_fn(|q| p(6 + q)),
+                std::array::from_fn(|q| p(12 + q)),
+                f64::from(RIDGE),
+                [o0, o1, o2, o3, o4, o5, o6, o7, o8].map(|o| o.as_mut_slice()),
+            );
+            for i in 0..n {
+                let at = |k: usize| planes[k][i];
+                let want = fit_pixel(
+                    std::array::from_fn(at),
+                    std::array::from_fn(|c| at(3 + c)),
+                    std::array::from_fn(|q| at(6 + q)),
+                    std::array::from_fn(|q| at(12 + q)),
+                );
+                for (k, w) in want.iter().enumerate() {
+                    assert_eq!(out[k][i].to_bits(), w.to_bits(), "pixel {i}, slope {k}");
+                }
+            }
+        }
     }
 
     #[test]

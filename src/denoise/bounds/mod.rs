@@ -207,47 +207,95 @@ pub(super) fn box_means<'a>(
     count: Option<&[f32]>,
     row: impl Fn(usize, &mut [f32]) -> Option<&'a [f32]> + Sync,
 ) -> Vec<f32> {
+    if w == 0 {
+        return Vec::new();
+    }
     let mut across = vec![0f32; w * rows];
-    across.par_chunks_mut(w).enumerate().for_each_init(
-        || vec![0f32; w],
-        |scratch, (y, out)| {
-            let row = match row(y, scratch) {
-                Some(row) => row,
-                None => scratch,
-            };
+    across.par_chunks_mut(w * ROWS_AT_ONCE).enumerate().for_each_init(
+        || vec![0f32; w * ROWS_AT_ONCE],
+        |scratch, (g, out)| {
+            let n = out.len() / w;
+            let mut given: [Option<&'a [f32]>; ROWS_AT_ONCE] = [None; ROWS_AT_ONCE];
+            for (k, s) in scratch.chunks_mut(w).take(n).enumerate() {
+                given[k] = row(g * ROWS_AT_ONCE + k, s);
+            }
+            let src: [&[f32]; ROWS_AT_ONCE] =
+                std::array::from_fn(|k| given[k].unwrap_or(&scratch[(k * w).min(n * w)..((k + 1) * w).min(n * w)]));
             // A running sum along each row, in f64, where its values are moderate: what
             // leaves the window is then taken off to far below f32's rounding, and a huge
             // or non-finite value (hostile input) cannot spoil the rest of the row, which
             // is summed window by window. Rows are whole, so either way runs alike whatever
             // `rows` is.
-            if !row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT) {
-                for (x, o) in out.iter_mut().enumerate() {
-                    *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
-                }
-                return;
+            let moderate = |row: &[f32]| row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT);
+            if n == ROWS_AT_ONCE && src.iter().all(|row| moderate(row)) {
+                return running_sums(src, out, r);
             }
-            let mut sum: f64 = row[..r.min(w)].iter().map(|&v| f64::from(v)).sum();
-            for (x, o) in out.iter_mut().enumerate() {
-                if x + r < w {
-                    sum += f64::from(row[x + r]);
+            for (row, out) in src.iter().zip(out.chunks_mut(w)) {
+                if moderate(row) {
+                    running_sums([row], out, r);
+                } else {
+                    for (x, o) in out.iter_mut().enumerate() {
+                        *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
+                    }
                 }
-                if x > r {
-                    sum -= f64::from(row[x - r - 1]);
-                }
-                *o = sum as f32;
             }
         },
     );
     let mut out = vec![0f32; w * rows];
     out.par_chunks_mut(w).enumerate().for_each(|(k, o)| {
-        for j in k.saturating_sub(r)..(k + r + 1).min(rows) {
-            o.iter_mut().zip(&across[j * w..(j + 1) * w]).for_each(|(o, a)| *o += a);
-        }
-        if let Some(count) = count {
-            o.iter_mut().zip(&count[k * w..(k + 1) * w]).for_each(|(o, n)| *o /= n);
+        let window = k.saturating_sub(r)..(k + r + 1).min(rows);
+        let count = count.map(|c| &c[k * w..(k + 1) * w]);
+        // A block of columns at a time, its sums held in registers down the window:
+        // each still starts at 0 and adds the rows in order, then divides.
+        let mut x0 = 0;
+        while x0 < w {
+            let n = COLUMNS_AT_ONCE.min(w - x0);
+            let mut sums = [0f32; COLUMNS_AT_ONCE];
+            for j in window.clone() {
+                let a = &across[j * w + x0..][..n];
+                if n == COLUMNS_AT_ONCE {
+                    (0..COLUMNS_AT_ONCE).for_each(|i| sums[i] += a[i]);
+                } else {
+                    sums.iter_mut().zip(a).for_each(|(s, a)| *s += a);
+                }
+            }
+            let o = &mut o[x0..x0 + n];
+            match count {
+                Some(count) => o.iter_mut().zip(&sums).zip(&count[x0..]).for_each(|((o, s), c)| *o = s / c),
+                None => o.copy_from_slice(&sums[..n]),
+            }
+            x0 += n;
         }
     });
     out
+}
+
+/// Rows [`box_means`]'s row pass sums side by side: their running sums are independent
+/// chains of additions, which a core then overlaps instead of waiting on each.
+const ROWS_AT_ONCE: usize = 8;
+
+/// Columns [`box_means`]'s column pass sums at a time, in registers.
+const COLUMNS_AT_ONCE: usize = 64;
+
+/// The sums of each of `rows` (moderate values, each `w` long) over the window of radius
+/// `r` around each pixel, into `out`'s rows: a running sum in f64 per row, `N` rows a
+/// step, each row's in the one order.
+#[inline(always)]
+fn running_sums<const N: usize>(rows: [&[f32]; N], out: &mut [f32], r: usize) {
+    let w = out.len() / N;
+    let rows: [&[f32]; N] = rows.map(|row| &row[..w]);
+    let mut sum: [f64; N] = rows.map(|row| row[..r.min(w)].iter().map(|&v| f64::from(v)).sum());
+    for x in 0..w {
+        for k in 0..N {
+            if x + r < w {
+                sum[k] += f64::from(rows[k][x + r]);
+            }
+            if x > r {
+                sum[k] -= f64::from(rows[k][x - r - 1]);
+            }
+            out[k * w + x] = sum[k] as f32;
+        }
+    }
 }
 
 #[cfg(test)]
@@ -259,6 +307,73 @@ mod tests {
     /// A value in [0, 1) drawn from pixel `i` and plane `k`.
     pub(in crate::denoise::bounds) fn hash(i: usize, k: usize) -> f32 {
         ((i * 7919 + k * 104_729) % 1009) as f32 / 1009.0
+    }
+
+    /// [`box_means`] a row and a pixel at a time: each row's running sum (or, where a value
+    /// is not moderate, each window's sum), then each column's window of rows added in
+    /// order from 0 and divided. What the blocked passes must give, bit for bit.
+    fn box_means_pixel_by_pixel(plane: &[f32], w: usize, r: usize, rows: usize, count: Option<&[f32]>) -> Vec<f32> {
+        let mut across = vec![0f32; w * rows];
+        for (row, out) in plane.chunks(w).zip(across.chunks_mut(w)) {
+            if !row.iter().all(|v| v.abs() <= RUNNING_SUM_LIMIT) {
+                for (x, o) in out.iter_mut().enumerate() {
+                    *o = row[x.saturating_sub(r)..(x + r + 1).min(w)].iter().sum();
+                }
+                continue;
+            }
+            let mut sum: f64 = row[..r.min(w)].iter().map(|&v| f64::from(v)).sum();
+            for (x, o) in out.iter_mut().enumerate() {
+                if x + r < w {
+                    sum += f64::from(row[x + r]);
+                }
+                if x > r {
+                    sum -= f64::from(row[x - r - 1]);
+                }
+                *o = sum as f32;
+            }
+        }
+        (0..w * rows)
+            .map(|i| {
+                let (k, x) = (i / w, i % w);
+                let mut o = 0f32;
+                for j in k.saturating_sub(r)..(k + r + 1).min(rows) {
+                    o += across[j * w + x];
+                }
+                count.map_or(o, |c| o / c[i])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn box_means_are_the_pixel_by_pixel_sums_bit_for_bit() {
+        // Widths around the column block (64), heights around the row group (8), radii
+        // wider than the plane, and rows of huge or non-finite values among moderate ones.
+        for (w, rows, r) in [(1, 1, 0), (5, 3, 7), (63, 9, 2), (64, 8, 3), (130, 17, 7), (70, 24, 1)] {
+            for spoiled in [false, true] {
+                let plane: Vec<f32> = (0..w * rows)
+                    .map(|i| match (spoiled, (i / w) % 5, i % 13) {
+                        (true, 2, 3) => hostile(i, 0, 3e4, 3),
+                        _ => hash(i, 1) * 10.0 - 3.0,
+                    })
+                    .collect();
+                let count: Vec<f32> = (0..w * rows).map(|i| 1.0 + (i % 7) as f32).collect();
+                for count in [None, Some(&count[..])] {
+                    let got = box_means(w, r, rows, count, |y, _| Some(&plane[y * w..(y + 1) * w]));
+                    let want = box_means_pixel_by_pixel(&plane, w, r, rows, count);
+                    assert!(
+                        got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{w}×{rows}, r {r}, spoiled {spoiled}, counted {}",
+                        count.is_some()
+                    );
+                    // Rows written into the scratch rather than given, alike.
+                    let written = box_means(w, r, rows, count, |y, scratch| {
+                        scratch.copy_from_slice(&plane[y * w..(y + 1) * w]);
+                        None
+                    });
+                    assert!(written.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()));
+                }
+            }
+        }
     }
 
     /// `v` at pixel `i` of plane `k`, but NaN, +∞ or −`v` at one pixel in `every` each.

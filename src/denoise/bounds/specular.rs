@@ -1,7 +1,7 @@
 //! The specular branch's bound: how far it may move each pixel from its noisy value.
 
 use super::CEILING_RADIUS;
-use super::ceiling::{alike_differences, window_offsets};
+use super::ceiling::{LANES, alike_differences, medians_avx2_or_not, window_offsets};
 use crate::features::{Branch, Features, specular_of_log};
 use crate::kernel::avx2_or_compiled;
 use crate::kernel::planes::Planes;
@@ -48,7 +48,10 @@ impl NoisySpecular {
         let errors = arch.specular_bound? as f32;
         let (w, s) = (f.width, f.colour(Branch::Specular));
         let pixels = rows.start * w..rows.end * w;
-        let radiance: Vec<f32> = s.iter().flat_map(|p| p.iter().map(|&v| specular_of_log(v))).collect();
+        let mut radiance = Vec::with_capacity(3 * w * f.height);
+        for p in s {
+            radiance.par_extend(p.par_iter().map(|&v| specular_of_log(v)));
+        }
         let noisy = Planes::from_vec(3, w, f.height, radiance);
         let clamped = noisy.clamp_to_second_neighbour().clamp_to_second_neighbour();
         let rows_of = |p: &Planes| std::array::from_fn(|c| p.plane(c)[pixels.clone()].to_vec());
@@ -62,16 +65,24 @@ impl NoisySpecular {
 
     /// Bounds `specular` (the branch's output as exposed radiance, these rows) in place.
     pub(crate) fn apply(&self, specular: &mut [Vec<f32>; 3]) {
-        for (i, v) in self.variance.iter().enumerate() {
-            let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
-            let reach = self.errors * v.max(0.0).sqrt() * delta_scale(noisy);
-            for (c, n) in noisy.into_iter().enumerate() {
-                let down = reach.max(n - self.clamped[c][i]);
-                // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile input).
-                let out = &mut specular[c][i];
-                *out = n + (*out - n).max(-down).min(reach);
+        const CHUNK: usize = 1 << 14;
+        let [s0, s1, s2] = specular;
+        let chunks = s0.par_chunks_mut(CHUNK).zip(s1.par_chunks_mut(CHUNK)).zip(s2.par_chunks_mut(CHUNK));
+        chunks.enumerate().for_each(|(t, ((s0, s1), s2))| {
+            let out = [s0, s1, s2];
+            for k in 0..out[0].len() {
+                let i = t * CHUNK + k;
+                let noisy: [f32; 3] = std::array::from_fn(|c| self.noisy[c][i]);
+                let reach = self.errors * self.variance[i].max(0.0).sqrt() * delta_scale(noisy);
+                for (c, n) in noisy.into_iter().enumerate() {
+                    let down = reach.max(n - self.clamped[c][i]);
+                    // `max`/`min` rather than `clamp`, which panics on a NaN bound (hostile
+                    // input).
+                    let out = &mut out[c][k];
+                    *out = n + (*out - n).max(-down).min(reach);
+                }
             }
-        }
+        });
     }
 }
 
@@ -101,7 +112,7 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
     let (albedo, normal) = (&f.albedo, &f.normal);
     let planes: [&[f32]; 8] =
         [variance, &scale, &albedo[0], &albedo[1], &albedo[2], &normal[0], &normal[1], &normal[2]];
-    let (pass, ranks) = (alike_pass_avx2_or_not(), ranks_avx2_or_not());
+    let (pass, ranks, medians) = (alike_pass_avx2_or_not(), ranks_avx2_or_not(), medians_avx2_or_not());
     let mut out = variance[rows.start * w..rows.end * w].to_vec();
     out.par_chunks_mut(w).zip(rows).for_each_init(WindowScratch::default, |s, (out, y)| {
         for sums in [&mut s.radiance, &mut s.count, &mut s.threshold, &mut s.nan_first, &mut s.numbers, &mut s.short] {
@@ -137,14 +148,16 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
                 &mut s.short,
             );
         }
-        let mut variances = Vec::new();
-        for (x, out) in out.iter_mut().enumerate() {
-            let counts = [s.count[x], s.nan_first[x], s.numbers[x], s.short[x]].map(|k| k as usize);
-            if median_root_reaches(counts) {
-                variances.clear();
-                variances.extend((0..side * side).map(|o| s.variances[o * w + x]).filter(|v| !v.is_nan()));
-                *out = out.max(lower_median(&mut variances));
-            }
+        s.noisy.clear();
+        s.noisy.extend((0..w).filter(|&x| {
+            median_root_reaches([s.count[x], s.nan_first[x], s.numbers[x], s.short[x]].map(|k| k as usize))
+        }));
+        // The lower median, as chosen: where as many neighbours are lit as dark, the upper
+        // one lifted a surface's dark texels at 64 samples.
+        let mut lower = [0f32; LANES];
+        for xs in s.noisy.chunks(LANES) {
+            medians(&s.variances, w, xs, false, &mut lower);
+            xs.iter().zip(lower).for_each(|(&x, m)| out[x] = out[x].max(m));
         }
     });
     out
@@ -165,6 +178,8 @@ struct WindowScratch {
     short: Vec<f32>,
     variances: Vec<f32>,
     radiance_variances: Vec<f32>,
+    /// The pixels whose window is noisy.
+    noisy: Vec<usize>,
 }
 
 /// Whether the root of the lower median of a pixel's counted radiance variances reaches its
@@ -266,8 +281,9 @@ fn add_alike(
     }
 }
 
-/// The lower median of `v` (reordered); NaN when empty. Lower, as chosen: where as many
-/// neighbours are lit as dark, the upper one lifted a surface's dark texels at 64 samples.
+/// The lower median of `v` (reordered); NaN when empty: what the row pass's medians
+/// ([`super::ceiling::medians_avx2_or_not`]) must equal, pixel by pixel.
+#[cfg(test)]
 fn lower_median(v: &mut [f32]) -> f32 {
     if v.is_empty() {
         return f32::NAN;

@@ -83,14 +83,7 @@ pub fn conv_up_concat(coarse: &Planes, skip: &Planes, layer: &ConvLayer, relu: b
     let (w, h, cc) = (skip.w, skip.h, coarse.c);
     assert_eq!((coarse.w * 2, coarse.h * 2), (w, h), "a half-size coarse input");
     assert_eq!(cc + skip.c, layer.cin, "a {}-channel layer given {} channels", layer.cin, cc + skip.c);
-    if layer.cout * w * h == 0 {
-        return Planes::from_vec(layer.cout, w, h, Vec::new());
-    }
-    let r = (layer.k - 1) / 2;
-    let mut out = crate::kernel::buffers::with_capacity(layer.cout * w * h);
-    let (isa, pw, band) = (Isa::detect(), w + 2 * r, band_rows(w));
-    let ptr = RowsPtr(out.as_mut_ptr());
-    let row_of = |ch: usize, y: usize, dst: &mut [f32]| {
+    conv_rows(layer, relu, (w, h), 0..h, |ch, y, dst| {
         if ch < cc {
             let src = &coarse.data[(ch * coarse.h + y / 2) * coarse.w..][..coarse.w];
             for (pair, &v) in dst.chunks_mut(2).zip(src) {
@@ -99,18 +92,64 @@ pub fn conv_up_concat(coarse: &Planes, skip: &Planes, layer: &ConvLayer, relu: b
         } else {
             dst.copy_from_slice(&skip.data[((ch - cc) * h + y) * w..][..w]);
         }
-    };
-    (0..h.div_ceil(band)).into_par_iter().for_each_init(<(Vec<f32>, Vec<f32>)>::default, |(buf, scratch), t| {
-        let (y0, y1) = (t * band, (t * band + band).min(h));
-        pad_rows_with(buf, Padded { c: layer.cin, w, h, r }, y0..y1, row_of);
-        let job = Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa };
-        // SAFETY: rows y0..y1 of every output plane are written by this task only, inside
-        // the buffer's capacity; `out` outlives the loop.
-        unsafe { job.rows(y0..y1, ptr.get(), scratch) }
+    })
+}
+
+thread_local! {
+    /// Each thread's padded rows and partial sums, kept from call to call: a stream's
+    /// convolutions are many and small, and fresh buffers cost them a tenth of their time
+    /// in zeroing.
+    static BUFFERS: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
+
+/// `f` of this thread's [`BUFFERS`]; fresh ones where they are in use (never, unless
+/// `f` itself convolves).
+fn with_buffers<T>(f: impl FnOnce(&mut Vec<f32>, &mut Vec<f32>) -> T) -> T {
+    BUFFERS.with(|b| match b.try_borrow_mut() {
+        Ok(mut b) => {
+            let (buf, scratch) = &mut *b;
+            f(buf, scratch)
+        }
+        Err(_) => f(&mut Vec::new(), &mut Vec::new()),
+    })
+}
+
+/// Rows `out` of [`conv`] of `layer.cin` planes of `w × h` that are never built:
+/// `row_of(channel, y, dst)` writes row `y` of a plane (`w` values) where a task reads
+/// it, so a caller holding the rows in pieces (a stream's chunks) or as parts of other
+/// planes (a decoder's upsampled input) hands them over without gathering them first,
+/// and rows outside `out` (context, or zeros past the plane) cost no multiply-adds. Each
+/// value is [`conv`]'s of the whole planes, bit for bit.
+pub fn conv_rows(
+    layer: &ConvLayer,
+    relu: bool,
+    (w, h): (usize, usize),
+    out: Range<usize>,
+    row_of: impl Fn(usize, usize, &mut [f32]) + Sync,
+) -> Planes {
+    assert!(out.start <= out.end && out.end <= h, "rows {out:?} of a plane {h} tall");
+    let rows = out.len();
+    if layer.cout * w * rows == 0 {
+        return Planes::from_vec(layer.cout, w, rows, Vec::new());
+    }
+    let r = (layer.k - 1) / 2;
+    let mut data = crate::kernel::buffers::with_capacity(layer.cout * w * rows);
+    let (isa, pw, band) = (Isa::detect(), w + 2 * r, band_rows(w));
+    let ptr = RowsPtr(data.as_mut_ptr());
+    (0..rows.div_ceil(band)).into_par_iter().for_each(|t| {
+        let (y0, y1) = (out.start + t * band, (out.start + t * band + band).min(out.end));
+        with_buffers(|buf, scratch| {
+            pad_rows_with(buf, Padded { c: layer.cin, w, h, r }, y0..y1, &row_of);
+            let job = Job { src: buf, layer, w, h: rows, oy: out.start, pw, ph: y1 - y0 + 2 * r, y0, relu, isa };
+            // SAFETY: rows y0..y1 of every output plane are written by this task only,
+            // inside the buffer's capacity (`out`'s rows, from `oy`); `data` outlives the
+            // loop.
+            unsafe { job.rows(y0..y1, ptr.get(), scratch) }
+        })
     });
     // SAFETY: every row of every channel was written above.
-    unsafe { out.set_len(layer.cout * w * h) };
-    Planes::from_vec(layer.cout, w, h, out)
+    unsafe { data.set_len(layer.cout * w * rows) };
+    Planes::from_vec(layer.cout, w, rows, data)
 }
 
 /// [`conv`] of `items` consecutive images of `cin` planes of `w × h` each: their outputs,
@@ -134,10 +173,10 @@ pub fn conv_batch(input: &[f32], items: usize, w: usize, h: usize, layer: &ConvL
         let item = &input[i * n_in..][..n_in];
         let job = if r == 0 {
             // A 1×1 convolution reads its input in place.
-            Job { src: item, layer, w, h, pw, ph: h, y0: 0, relu, isa }
+            Job { src: item, layer, w, h, oy: 0, pw, ph: h, y0: 0, relu, isa }
         } else {
             pad_rows(buf, item, Padded { c: layer.cin, w, h, r }, y0..y1);
-            Job { src: buf, layer, w, h, pw, ph: y1 - y0 + 2 * r, y0, relu, isa }
+            Job { src: buf, layer, w, h, oy: 0, pw, ph: y1 - y0 + 2 * r, y0, relu, isa }
         };
         // SAFETY: rows y0..y1 of every output plane of item `i` are written by this task
         // only, inside the buffer's capacity; `out` outlives the loop.
@@ -154,7 +193,9 @@ struct Job<'a> {
     src: &'a [f32],
     layer: &'a ConvLayer,
     w: usize,
+    /// Rows of each output plane that `out` holds, from row `oy` of the plane.
     h: usize,
+    oy: usize,
     pw: usize,
     ph: usize,
     /// The output row `src`'s first rows belong to.
@@ -167,8 +208,8 @@ impl Job<'_> {
     /// Output rows `ys` of every channel (`scratch`: a reusable buffer).
     ///
     /// # Safety
-    /// `out` points at `cout × h × w` floats, `ys` lie below `h` and inside `src`, and no
-    /// other thread writes these rows.
+    /// `out` points at `cout × h × w` floats, `ys` lie in `oy..oy + h` and inside `src`,
+    /// and no other thread writes these rows.
     unsafe fn rows(&self, ys: Range<usize>, out: *mut f32, scratch: &mut Vec<f32>) {
         #[cfg(target_arch = "x86_64")]
         if self.isa == Isa::Avx512 {
@@ -211,7 +252,7 @@ impl Job<'_> {
                 }
                 let v = if self.relu { acc.max(0.0) } else { acc };
                 // SAFETY: inside the buffer (caller's contract).
-                unsafe { *out.add((co * self.h + y) * self.w + x) = v };
+                unsafe { *out.add((co * self.h + y - self.oy) * self.w + x) = v };
             }
         }
     }
@@ -242,7 +283,7 @@ impl Job<'_> {
                 .flat_map(|y| {
                     (0..w).step_by(16).map(move |x| Segment {
                         src: (y - self.y0) * pw + x,
-                        dst: y * w + x,
+                        dst: (y - self.oy) * w + x,
                         mask: mask(w - x),
                     })
                 })
@@ -252,7 +293,7 @@ impl Job<'_> {
             let n = rows * pw;
             // With r = 0 the flat rows are the output's own; else they go to `scratch`.
             let (dst, base) = if pw == w {
-                (out, ys.start * w)
+                (out, (ys.start - self.oy) * w)
             } else {
                 scratch.resize(l.cout.next_multiple_of(MR) * n, 0.0);
                 (scratch.as_mut_ptr(), 0)
@@ -299,7 +340,7 @@ impl Job<'_> {
                     unsafe {
                         std::ptr::copy_nonoverlapping(
                             scratch.as_ptr().add(c * out_plane + j * pw),
-                            out.add((c * h + y) * w),
+                            out.add((c * h + y - self.oy) * w),
                             w,
                         )
                     };
@@ -334,7 +375,7 @@ impl Job<'_> {
                     src: self.src[((y - self.y0) * self.pw + x)..].as_ptr(),
                     panel: l.packed[b * kk * MR + j0..].as_ptr(),
                     bias: l.bias[c0..].as_ptr(),
-                    dst: out.wrapping_add((c0 * self.h + y) * self.w + x),
+                    dst: out.wrapping_add((c0 * self.h + y - self.oy) * self.w + x),
                     out_plane: self.w * self.h,
                     channels: l.cin,
                     first: true,
@@ -544,6 +585,34 @@ mod tests {
     }
 
     #[test]
+    fn rows_of_planes_handed_over_by_row_are_the_whole_convolutions_bits() {
+        // Narrow (flat path) and wide planes, 3×3, 5×5 and 1×1, row ranges that start and
+        // end at the plane's edges, inside it, span several bands, or are empty.
+        for (cin, cout, k, w, h) in [(5, 9, 3, 12, 30), (16, 8, 3, 64, 40), (3, 4, 5, 20, 13), (7, 5, 1, 33, 9)] {
+            let input = Planes::from_vec(cin, w, h, SplitMix64(8).centred(cin * w * h));
+            let layer =
+                ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k);
+            let whole = conv(&input, &layer, true);
+            for out in [0..h, 0..1, 3..h, 1..h - 1, h / 2..h / 2 + 1, 2..2] {
+                let rows = conv_rows(&layer, true, (w, h), out.clone(), |c, y, dst| {
+                    dst.copy_from_slice(&input.data[(c * h + y) * w..][..w]);
+                });
+                assert_eq!((rows.c, rows.w, rows.h), (cout, w, out.len()));
+                let n = out.len();
+                for c in 0..cout {
+                    for (j, y) in out.clone().enumerate() {
+                        let (got, want) = (&rows.data[(c * n + j) * w..][..w], &whole.data[(c * h + y) * w..][..w]);
+                        assert!(
+                            got.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()),
+                            "{cin}→{cout} k{k} {w}×{h}, rows {out:?}: channel {c}, row {y}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn the_fused_decoder_input_gives_the_built_inputs_bits() {
         // Narrow (flat path) and wide planes, several bands, 3×3 and 1×1.
         for (cc, cs, cout, k, w, h) in [(6, 4, 5, 3, 12, 10), (16, 8, 12, 3, 64, 40), (5, 3, 7, 1, 20, 6)] {
@@ -579,7 +648,18 @@ mod tests {
                 let mut pad = Vec::new();
                 pad_rows(&mut pad, &input.data, Padded { c: cin, w, h, r }, 0..h);
                 let mut out = Planes::zeros(cout, w, h);
-                let job = Job { src: &pad, layer: &layer, w, h, pw: w + 2 * r, ph: h + 2 * r, y0: 0, relu: false, isa };
+                let job = Job {
+                    src: &pad,
+                    layer: &layer,
+                    w,
+                    h,
+                    oy: 0,
+                    pw: w + 2 * r,
+                    ph: h + 2 * r,
+                    y0: 0,
+                    relu: false,
+                    isa,
+                };
                 // SAFETY: single-threaded; rows inside the buffer.
                 unsafe { job.rows(0..h, out.data.as_mut_ptr(), &mut Vec::new()) };
                 bits(&out.data)

@@ -36,7 +36,7 @@ macro_rules! with_const {
 mod forward;
 mod weight_gradient;
 
-pub use forward::{conv, conv_batch, conv_up_concat};
+pub use forward::{conv, conv_batch, conv_rows, conv_up_concat};
 pub use weight_gradient::weight_gradient;
 
 /// Output channels per packed weight panel (one micro-kernel block).

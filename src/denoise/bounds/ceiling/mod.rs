@@ -1,7 +1,9 @@
 //! The diffuse ceiling ([`DiffuseCeiling`]): the most the diffuse branch may brighten each
 //! pixel, from the noisy light of its similar neighbours.
 
+mod median;
 mod rows;
+pub(super) use median::{LANES, medians_avx2_or_not};
 
 use super::Bounds;
 use crate::features::Features;

@@ -4,7 +4,8 @@
 //! so that its inner loop vectorises, and adds up each pixel's neighbours in the window's
 //! order (rows, then columns), as a pixel-by-pixel gather would.
 
-use super::{CEILING_RADIUS, LIT_SHARE, alike_differences, alike_surfaces, median, within_errors};
+use super::median::{LANES, Medians, medians_avx2_or_not};
+use super::{CEILING_RADIUS, LIT_SHARE, alike_differences, alike_surfaces, within_errors};
 use crate::kernel::avx2_or_compiled;
 use std::ops::Range;
 
@@ -18,17 +19,18 @@ pub(super) type Planes<'a> = [&'a [f32]; 11];
 pub(super) struct Passes {
     similar: AddSimilar,
     dense: AddDense,
+    medians: Medians,
 }
 
 impl Passes {
     pub(super) fn avx2_or_not() -> Passes {
-        Passes { similar: add_similar_avx2_or_not(), dense: add_dense_avx2_or_not() }
+        Passes { similar: add_similar_avx2_or_not(), dense: add_dense_avx2_or_not(), medians: medians_avx2_or_not() }
     }
 
     /// The loops as compiled for the crate's target, whatever the CPU has.
     #[cfg(test)]
     pub(super) fn compiled() -> Passes {
-        Passes { similar: add_similar, dense: add_dense }
+        Passes { similar: add_similar, dense: add_dense, medians: super::median::medians }
     }
 }
 
@@ -60,8 +62,7 @@ pub(in crate::denoise::bounds) fn window_offsets(
 /// Per worker, what [`dense_row`] gathers over a row: per pixel, its 7×7 window's lit
 /// pixels; the pixels whose window is not sparse; per pixel, its similar neighbours and the
 /// sums of their d̃; per offset of the window, the variance of each pixel's neighbour there
-/// where that neighbour is similar and its variance finite (else NaN); and the scratch of
-/// one pixel's median.
+/// where that neighbour is similar and its variance finite (else NaN).
 #[derive(Default)]
 pub(super) struct DenseScratch {
     lit: Vec<u32>,
@@ -69,7 +70,6 @@ pub(super) struct DenseScratch {
     count: Vec<f32>,
     sums: [Vec<f32>; 3],
     chosen: Vec<f32>,
-    median: Vec<f32>,
 }
 
 /// The ceiling of each pixel of row `y` (`out`: `[c][x]`) from its 7×7 window, on the
@@ -128,12 +128,14 @@ pub(super) fn dense_row(
             );
         });
     }
-    for &x in &s.dense {
-        s.median.clear();
-        s.median.extend((0..side * side).map(|o| s.chosen[o * w + x]).filter(|v| !v.is_nan()));
-        let reach = errors * median(&mut s.median).max(0.0).sqrt();
-        for c in 0..3 {
-            out[c * w + x] = s.sums[c][x] / s.count[x] + reach;
+    let mut medians = [0f32; LANES];
+    for xs in s.dense.chunks(LANES) {
+        (passes.medians)(&s.chosen, w, xs, true, &mut medians);
+        for (&x, m) in xs.iter().zip(medians) {
+            let reach = errors * m.max(0.0).sqrt();
+            for c in 0..3 {
+                out[c * w + x] = s.sums[c][x] / s.count[x] + reach;
+            }
         }
     }
 }
