@@ -92,10 +92,9 @@ pub(super) struct Region<'a> {
 }
 
 impl Region<'_> {
-    /// Rows `out` of [`Backend::conv`] (or, where layer `layer` is not the split head,
-    /// [`Backend::conv_up_concat`]) of `w × h` planes that are never built: `row_of`
-    /// writes their rows ([`conv_rows`]). `None` for the split head, which has no one
-    /// layer to run.
+    /// Rows `out` of [`Backend::conv`] of `w × h` planes that are never built: `row_of`
+    /// writes their rows ([`conv_rows`]). Also [`Backend::conv_up_concat`]'s, where layer
+    /// `layer` is not the split head ([`Region::splits`]).
     pub(super) fn conv_rows(
         &self,
         layer: usize,
@@ -103,9 +102,14 @@ impl Region<'_> {
         size: (usize, usize),
         out: std::ops::Range<usize>,
         row_of: impl Fn(usize, usize, &mut [f32]) + Sync,
-    ) -> Option<Planes> {
-        let layer = self.weights.layers.get(layer).filter(|_| layer + 1 < self.weights.layers.len())?;
-        Some(conv_rows(layer, relu, size, out, row_of))
+    ) -> Planes {
+        conv_rows(&self.weights.layers[layer], relu, size, out, row_of)
+    }
+
+    /// Whether layer `layer` is the full-resolution head, which
+    /// [`Backend::conv_up_concat`] runs split in two ([`Weights`]).
+    pub(super) fn splits(&self, layer: usize) -> bool {
+        layer + 1 >= self.weights.layers.len()
     }
 }
 
@@ -122,7 +126,7 @@ impl Backend for Region<'_> {
     }
 
     fn conv_up_concat(&self, coarse: &Planes, skip: &Planes, layer: usize, relu: bool) -> Result<Planes, Self::Error> {
-        if layer + 1 < self.weights.layers.len() {
+        if !self.splits(layer) {
             return Ok(conv_up_concat(coarse, skip, &self.weights.layers[layer], relu));
         }
         // The full-resolution head, split (see [`Weights`]).

@@ -444,12 +444,14 @@ impl<'a> Stream<'a> {
                 let (_, lo, hi) = needs[0];
                 let x = &self.nodes[x].store;
                 let row_of = |ch: usize, y: usize, dst: &mut [f32]| dst.copy_from_slice(x.row(ch, lo + y));
-                match r.conv_rows(layer, relu, (x.width(), hi - lo), a - lo..b - lo, row_of) {
-                    Some(rows) => rows,
-                    None => unreachable!("the split head is an up-concat"),
-                }
+                r.conv_rows(layer, relu, (x.width(), hi - lo), a - lo..b - lo, row_of)
             }
             Op::Pool { .. } => ok(r.pool(&window(0).0)),
+            // The full-resolution head: 1×1, so its window is its rows.
+            Op::UpConcat { layer, relu, .. } if r.splits(layer) => {
+                let ((skip, lo), (coarse, _)) = (window(0), window(1));
+                crop(ok(r.conv_up_concat(&coarse, &skip, layer, relu)), a - lo, b - lo)
+            }
             Op::UpConcat { coarse, skip, layer, relu } => {
                 let (_, lo, hi) = needs[0];
                 let (coarse, skip) = (&self.nodes[coarse].store, &self.nodes[skip].store);
@@ -464,14 +466,7 @@ impl<'a> Stream<'a> {
                         dst.copy_from_slice(skip.row(ch - cc, lo + y));
                     }
                 };
-                match r.conv_rows(layer, relu, (skip.width(), hi - lo), a - lo..b - lo, row_of) {
-                    Some(rows) => rows,
-                    // The full-resolution head: 1×1, so its window is its rows.
-                    None => {
-                        let ((skip, lo), (coarse, _)) = (window(0), window(1));
-                        crop(ok(r.conv_up_concat(&coarse, &skip, layer, relu)), a - lo, b - lo)
-                    }
-                }
+                r.conv_rows(layer, relu, (skip.width(), hi - lo), a - lo..b - lo, row_of)
             }
             Op::Colour { .. } => unreachable!("the colour pyramid is advanced whole"),
             Op::Apply { colour, .. } => {

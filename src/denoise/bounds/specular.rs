@@ -184,7 +184,7 @@ struct WindowScratch {
 
 /// Whether the root of the lower median of a pixel's counted radiance variances reaches its
 /// threshold, from `[counted, nan_first, numbers, short]` as [`ranks`] counts them: in
-/// [`lower_median`]'s order (`f32::total_cmp`: NaNs with the sign bit, then numbers
+/// the median's order (`f32::total_cmp`: NaNs with the sign bit, then numbers
 /// ascending, then the other NaNs) the numbers whose root falls short come first among
 /// the numbers (the root is monotone), so the median's place among the counts says it,
 /// without ordering the window. False where none counts.
@@ -206,7 +206,7 @@ avx2_or_compiled!(
 
 /// Counts, for one offset of the window and each pixel of a row, where its neighbour
 /// there (`window`: its variance, counted where not NaN, its radiance's variance, and the
-/// pixel's threshold) falls among the window's radiance variances in [`lower_median`]'s
+/// pixel's threshold) falls among the window's radiance variances in the median's
 /// order: a NaN with the sign bit (first, into `nan_first`), a number (`numbers`), and a
 /// number whose root falls short of the threshold (`short`). Branch-free, so that it
 /// vectorises.
