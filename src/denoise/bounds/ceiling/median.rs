@@ -86,13 +86,25 @@ pub(in crate::denoise::bounds) fn medians(chosen: &[f32], w: usize, xs: &[usize]
     assert!(xs.len() <= LANES && out.len() >= xs.len(), "{} pixels at a time", LANES);
     // NaNs become the largest key, after every number's.
     let mut keys = [[i32::MAX; LANES]; WINDOW];
-    let mut numbers = [0usize; LANES];
-    for (lane, &x) in xs.iter().enumerate() {
+    let mut numbers = [0u32; LANES];
+    if xs.len() == LANES && xs[LANES - 1] == xs[0] + LANES - 1 {
+        // A run of pixels (most of the ceiling's): each offset's values are one vector.
         for (o, k) in keys.iter_mut().enumerate() {
-            let v = chosen[o * w + x];
-            if !v.is_nan() {
-                k[lane] = key(v);
-                numbers[lane] += 1;
+            let v = &chosen[o * w + xs[0]..][..LANES];
+            for lane in 0..LANES {
+                let number = !v[lane].is_nan();
+                k[lane] = if number { key(v[lane]) } else { i32::MAX };
+                numbers[lane] += u32::from(number);
+            }
+        }
+    } else {
+        for (lane, &x) in xs.iter().enumerate() {
+            for (o, k) in keys.iter_mut().enumerate() {
+                let v = chosen[o * w + x];
+                if !v.is_nan() {
+                    k[lane] = key(v);
+                    numbers[lane] += 1;
+                }
             }
         }
     }
@@ -103,7 +115,7 @@ pub(in crate::denoise::bounds) fn medians(chosen: &[f32], w: usize, xs: &[usize]
         keys[usize::from(j)] = std::array::from_fn(|l| a[l].max(b[l]));
     }
     for (lane, o) in out[..xs.len()].iter_mut().enumerate() {
-        let n = numbers[lane];
+        let n = numbers[lane] as usize;
         let at = if upper { n / 2 } else { n.saturating_sub(1) / 2 };
         *o = if n == 0 { f32::NAN } else { value(keys[at][lane]) };
     }
