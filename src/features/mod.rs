@@ -186,13 +186,16 @@ fn grad_at(p: &[f32], w: usize, x: usize, y: usize, along_x: bool) -> f32 {
 /// slice at a time, so that it vectorises.
 fn gradient_row(p: &[f32], w: usize, y: usize, along_x: bool, span: Range<usize>, out: &mut Vec<f32>) {
     out.clear();
+    if span.is_empty() {
+        return;
+    }
     let row = &p[y * w..][..w];
     let (from, to) = match (along_x, y) {
         (true, _) => (&row[span.start.max(1)..span.end], &row[span.start.max(1) - 1..span.end - 1]),
         (false, 0) => return out.resize(span.len(), 0.0),
         (false, _) => (&row[span.clone()], &p[(y - 1) * w..][span.clone()]),
     };
-    if along_x && span.start == 0 && !span.is_empty() {
+    if along_x && span.start == 0 {
         out.push(0.0);
     }
     out.extend(from.iter().zip(to).map(|(a, b)| sanitize(a - b)));
@@ -201,7 +204,7 @@ fn gradient_row(p: &[f32], w: usize, y: usize, along_x: bool, span: Range<usize>
 /// A region's columns reflected into the frame, as runs of consecutive frame columns
 /// (up or down): a region past the frame's sides is three runs, which copy a slice at a
 /// time instead of a column at a time.
-pub(crate) struct Columns {
+struct Columns {
     /// `(first region column, first frame column, length, ascending)`.
     runs: Vec<(usize, usize, usize, bool)>,
     /// The frame columns the region reads.

@@ -97,8 +97,7 @@ pub fn conv_up_concat(coarse: &Planes, skip: &Planes, layer: &ConvLayer, relu: b
 
 thread_local! {
     /// Each thread's padded rows and partial sums, kept from call to call: a stream's
-    /// convolutions are many and small, and fresh buffers cost them a tenth of their time
-    /// in zeroing.
+    /// convolutions are many and small, and fresh buffers were zeroed anew for each.
     static BUFFERS: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
