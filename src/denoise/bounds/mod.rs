@@ -219,8 +219,9 @@ pub(super) fn box_means<'a>(
             for (k, s) in scratch.chunks_mut(w).take(n).enumerate() {
                 given[k] = row(g * ROWS_AT_ONCE + k, s);
             }
+            // Rows past the plane's last (a short last group) are empty.
             let src: [&[f32]; ROWS_AT_ONCE] =
-                std::array::from_fn(|k| given[k].unwrap_or(&scratch[(k * w).min(n * w)..((k + 1) * w).min(n * w)]));
+                std::array::from_fn(|k| given[k].unwrap_or(if k < n { &scratch[k * w..(k + 1) * w] } else { &[] }));
             // A running sum along each row, in f64, where its values are moderate: what
             // leaves the window is then taken off to far below f32's rounding, and a huge
             // or non-finite value (hostile input) cannot spoil the rest of the row, which
@@ -253,6 +254,8 @@ pub(super) fn box_means<'a>(
             let mut sums = [0f32; COLUMNS_AT_ONCE];
             for j in window.clone() {
                 let a = &across[j * w + x0..][..n];
+                // A whole block with a constant bound, which the compiler unrolls into
+                // registers; the plane's last, narrower block as it comes.
                 if n == COLUMNS_AT_ONCE {
                     (0..COLUMNS_AT_ONCE).for_each(|i| sums[i] += a[i]);
                 } else {
