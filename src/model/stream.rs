@@ -15,7 +15,7 @@ use super::Architecture;
 use super::multiscale::{self, Backend};
 use super::pyramid::{Region, Weights, apply_rows, blend_scales};
 use crate::kernel::buffers;
-use crate::kernel::planes::Planes;
+use crate::kernel::planes::{Planes, repeat_pairs};
 use std::borrow::Cow;
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -459,9 +459,7 @@ impl<'a> Stream<'a> {
                 // A coarse row is two fine ones; `lo` is even (see `even_window`).
                 let row_of = |ch: usize, y: usize, dst: &mut [f32]| {
                     if ch < cc {
-                        for (pair, &v) in dst.chunks_mut(2).zip(coarse.row(ch, (lo + y) / 2)) {
-                            pair.fill(v);
-                        }
+                        repeat_pairs(dst, coarse.row(ch, (lo + y) / 2));
                     } else {
                         dst.copy_from_slice(skip.row(ch - cc, lo + y));
                     }
@@ -477,8 +475,7 @@ impl<'a> Stream<'a> {
             Op::Sub { .. } => ok(r.sub(&window(0).0, &window(1).0)),
             Op::Blend { .. } => {
                 let (mut fine, logits, (coarse, lo)) = (window(0).0.into_owned(), window(1).0, window(2));
-                let up = coarse.up_bilinear();
-                let up = crop(up, a - 2 * lo, b - 2 * lo);
+                let up = coarse.up_bilinear_rows(a - 2 * lo..b - 2 * lo);
                 blend_scales(self.arch, &mut fine, &up, &logits);
                 fine
             }

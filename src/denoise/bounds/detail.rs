@@ -130,21 +130,38 @@ fn restore_rows(planes: [&[f32]; 10], w: usize, r: usize) -> [Vec<f32>; 3] {
     let slope: Vec<Vec<f32>> =
         (0..9).map(|k| box_means(w, r, rows, Some(&count), |y, _| Some(&fits[(9 * y + k) * w..][..w]))).collect();
     drop(fits);
-    std::array::from_fn(|ch| {
-        (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let v: f32 = (0..3).map(|j| slope[j * 3 + ch][i] * (normal[j][i] - g[j][i])).sum();
-                let (e, away) = (residual[ch][i], AWAY_ERRORS * finite(variance[i].max(noise[i]).sqrt()));
-                let bound = d_hat[ch][i].abs();
-                if v.is_finite() && bound.is_finite() {
-                    v.clamp(e.min(0.0) - away, e.max(0.0) + away).clamp(-bound, bound)
-                } else {
-                    0.0
+    // The three channels side by side, in runs of a row's length: what they share (the
+    // normal's distance from its window's mean, the bound's width) is read and made once,
+    // and the loop over a run vectorises.
+    let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0f32; n]);
+    let [o0, o1, o2] = &mut out;
+    let run = w.max(1);
+    o0.par_chunks_mut(run).zip(o1.par_chunks_mut(run)).zip(o2.par_chunks_mut(run)).enumerate().for_each(
+        |(t, ((o0, o1), o2))| {
+            let at = t * run..t * run + o0.len();
+            let [n0, n1, n2] = [0, 1, 2].map(|j| &normal[j][at.clone()]);
+            let [g0, g1, g2] = [0, 1, 2].map(|j| &g[j][at.clone()]);
+            let (variance, noise) = (&variance[at.clone()], &noise[at.clone()]);
+            let slope: [&[f32]; 9] = std::array::from_fn(|k| &slope[k][at.clone()]);
+            let residual: [&[f32]; 3] = std::array::from_fn(|c| &residual[c][at.clone()]);
+            let d_hat: [&[f32]; 3] = std::array::from_fn(|c| &d_hat[c][at.clone()]);
+            let mut out = [o0, o1, o2];
+            for x in 0..n0.len() {
+                let to = [n0[x] - g0[x], n1[x] - g1[x], n2[x] - g2[x]];
+                let away = AWAY_ERRORS * finite(variance[x].max(noise[x]).sqrt());
+                for (ch, out) in out.iter_mut().enumerate() {
+                    let v: f32 = (0..3).map(|j| slope[j * 3 + ch][x] * to[j]).sum();
+                    let (e, bound) = (residual[ch][x], d_hat[ch][x].abs());
+                    out[x] = if v.is_finite() && bound.is_finite() {
+                        v.clamp(e.min(0.0) - away, e.max(0.0) + away).clamp(-bound, bound)
+                    } else {
+                        0.0
+                    };
                 }
-            })
-            .collect()
-    })
+            }
+        },
+    );
+    out
 }
 
 /// How many pixels of rows `rows`, `w` wide, the window of radius `r` around each holds,

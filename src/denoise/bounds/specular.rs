@@ -1,7 +1,7 @@
 //! The specular branch's bound: how far it may move each pixel from its noisy value.
 
 use super::CEILING_RADIUS;
-use super::ceiling::{LANES, alike_differences, medians_avx2_or_not, window_offsets};
+use super::ceiling::{LANES, alike_differences, medians_avx2_or_not, nan_outside, window_offsets};
 use crate::features::{Branch, Features, specular_of_log};
 use crate::kernel::avx2_or_compiled;
 use crate::kernel::planes::Planes;
@@ -120,8 +120,7 @@ fn variance_in_noisy_windows(f: &Features, noisy: &Planes, rows: Range<usize>) -
             sums.resize(w, 0.0);
         }
         for chosen in [&mut s.variances, &mut s.radiance_variances] {
-            chosen.clear();
-            chosen.resize(side * side * w, f32::NAN);
+            nan_outside((w, h), y, r, chosen);
         }
         window_offsets((w, h), y, r, 0..w, |offset, xs, there| {
             let [_, _, a0i, a1i, a2i, n0i, n1i, n2i] = planes.map(|p| &p[y * w..][xs.clone()]);

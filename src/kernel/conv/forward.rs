@@ -1,6 +1,6 @@
 //! The forward pass: a register-blocked direct convolution over zero-padded bands of rows.
 
-use super::super::planes::Planes;
+use super::super::planes::{Planes, repeat_pairs};
 use super::super::simd::Isa;
 use super::{ConvLayer, MR};
 use rayon::prelude::*;
@@ -86,9 +86,7 @@ pub fn conv_up_concat(coarse: &Planes, skip: &Planes, layer: &ConvLayer, relu: b
     conv_rows(layer, relu, (w, h), 0..h, |ch, y, dst| {
         if ch < cc {
             let src = &coarse.data[(ch * coarse.h + y / 2) * coarse.w..][..coarse.w];
-            for (pair, &v) in dst.chunks_mut(2).zip(src) {
-                pair.fill(v);
-            }
+            repeat_pairs(dst, src);
         } else {
             dst.copy_from_slice(&skip.data[((ch - cc) * h + y) * w..][..w]);
         }

@@ -9,8 +9,8 @@ use super::Bounds;
 use crate::features::Features;
 use crate::model::{Architecture, Variances};
 use rayon::prelude::*;
-pub(super) use rows::window_offsets;
 use rows::{DenseScratch, Passes, Planes, SUMS, column_runs, dense_row, lit_in_window_row, window_row_sums};
+pub(super) use rows::{nan_outside, window_offsets};
 use std::ops::Range;
 
 /// Half the side of the window a pixel's similar neighbours are sought in (7×7).

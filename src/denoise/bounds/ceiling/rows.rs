@@ -59,6 +59,29 @@ pub(in crate::denoise::bounds) fn window_offsets(
     }
 }
 
+/// Makes `chosen` (per offset of the window of half-side `r` around each pixel of row `y`
+/// of a `w` × `h` region, a row of `w` values, in [`window_offsets`]' order) `w · side²`
+/// long, NaN wherever the neighbour lies outside the region: the values a row pass writes
+/// for the others, and [`super::median::medians`] counts no NaN. Only those are written,
+/// not the whole block (each row pass once filled it with NaN, 49 values a pixel).
+pub(in crate::denoise::bounds) fn nan_outside((w, h): (usize, usize), y: usize, r: usize, chosen: &mut Vec<f32>) {
+    let side = 2 * r + 1;
+    chosen.resize(side * side * w, f32::NAN);
+    for (offset, row) in chosen.chunks_exact_mut(w).enumerate() {
+        let (dy, dx) = ((offset / side) as isize - r as isize, (offset % side) as isize - r as isize);
+        let yy = y as isize + dy;
+        if yy < 0 || yy >= h as isize {
+            row.fill(f32::NAN);
+        } else {
+            // Columns x with x + dx outside 0..w.
+            let left = ((-dx).max(0) as usize).min(w);
+            let right = w.saturating_sub(dx.max(0) as usize).max(left);
+            row[..left].fill(f32::NAN);
+            row[right..].fill(f32::NAN);
+        }
+    }
+}
+
 /// Per worker, what [`dense_row`] gathers over a row: per pixel, its 7×7 window's lit
 /// pixels; the pixels whose window is not sparse; per pixel, its similar neighbours and the
 /// sums of their d̃; per offset of the window, the variance of each pixel's neighbour there
@@ -104,8 +127,7 @@ pub(super) fn dense_row(
         plane.clear();
         plane.resize(w, 0.0);
     }
-    s.chosen.clear();
-    s.chosen.resize(side * side * w, f32::NAN);
+    nan_outside((w, h), y, r, &mut s.chosen);
     let centre = side * side / 2;
     for run in column_runs(&s.dense) {
         window_offsets((w, h), y, r, run, |offset, xs, there| {
@@ -373,5 +395,28 @@ mod tests {
         assert_eq!(runs(&[5]), vec![5..6]);
         // Gaps of up to 16 columns stay in one run; a longer one splits it.
         assert_eq!(runs(&[0, 1, 17, 40, 41, 300]), [0..18, 40..42, 300..301]);
+    }
+
+    #[test]
+    fn exactly_the_neighbours_outside_the_region_are_nan_whatever_was_there() {
+        // Regions narrower and shorter than a window, and wider; every row. What was there
+        // before (a previous row's values) must not show through anywhere the passes do
+        // not write, and nowhere they do write may be NaN already.
+        for (w, h, r) in [(1, 1, 3), (2, 5, 3), (13, 9, 3), (40, 3, 1), (9, 12, 7)] {
+            let side = 2 * r + 1;
+            let mut chosen = vec![7.0; side * side * w + 5];
+            for y in 0..h {
+                chosen.iter_mut().for_each(|v| *v = 7.0);
+                nan_outside((w, h), y, r, &mut chosen);
+                assert_eq!(chosen.len(), side * side * w);
+                let mut visited = vec![false; chosen.len()];
+                window_offsets((w, h), y, r, 0..w, |offset, xs, _| {
+                    visited[offset * w..][xs].iter_mut().for_each(|v| *v = true);
+                });
+                for (i, (&v, &inside)) in chosen.iter().zip(&visited).enumerate() {
+                    assert_eq!(v.is_nan(), !inside, "{w}×{h}, r {r}, row {y}, offset {}, column {}", i / w, i % w);
+                }
+            }
+        }
     }
 }
