@@ -248,7 +248,7 @@ impl Planes {
         Planes::by_rows(self.c, 2 * self.w, rows.len(), |c, j, dst| {
             let y2 = rows.start + j;
             let y = y2 / 2;
-            let other = if y2 % 2 == 0 { y.saturating_sub(1) } else { (y + 1).min(h - 1) };
+            let other = if y2.is_multiple_of(2) { y.saturating_sub(1) } else { (y + 1).min(h - 1) };
             up_bilinear_row(dst, self.row(c, y), self.row(c, other));
         })
     }
@@ -615,7 +615,7 @@ mod tests {
                 (0..2 * w)
                     .map(|x2| {
                         let x = x2 / 2;
-                        let side = if x2 % 2 == 0 { s[x.saturating_sub(1)] } else { s[(x + 1).min(w - 1)] };
+                        let side = if x2.is_multiple_of(2) { s[x.saturating_sub(1)] } else { s[(x + 1).min(w - 1)] };
                         s[x] * 0.75 + side * 0.25
                     })
                     .collect()
@@ -624,7 +624,7 @@ mod tests {
             for c in 0..p.c {
                 for y2 in 0..2 * h {
                     let y = y2 / 2;
-                    let other = if y2 % 2 == 0 { y.saturating_sub(1) } else { (y + 1).min(h - 1) };
+                    let other = if y2.is_multiple_of(2) { y.saturating_sub(1) } else { (y + 1).min(h - 1) };
                     out.extend(wide(c, y).iter().zip(wide(c, other)).map(|(n, f)| n * 0.75 + f * 0.25));
                 }
             }
