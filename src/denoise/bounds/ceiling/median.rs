@@ -64,6 +64,36 @@ fn value(k: i32) -> f32 {
     f32::from_bits((k ^ ((((k >> 31) as u32) >> 1) as i32)) as u32)
 }
 
+/// Compare-exchange `K` of [`NETWORK`] on each lane of `keys` (none past its end). A
+/// const parameter, so that every index is a constant once inlined and the compiler keeps
+/// the keys in registers across exchanges instead of in memory.
+#[inline(always)]
+fn exchange<const K: usize>(keys: &mut [[i32; LANES]; WINDOW]) {
+    let (pairs, len) = &NETWORK;
+    if K < *len {
+        let (i, j) = (usize::from(pairs[K].0), usize::from(pairs[K].1));
+        let (a, b) = (keys[i], keys[j]);
+        keys[i] = std::array::from_fn(|l| a[l].min(b[l]));
+        keys[j] = std::array::from_fn(|l| a[l].max(b[l]));
+    }
+}
+
+/// Every exchange of [`NETWORK`] in order: `exchange::<K>` for K below 64 × 8.
+macro_rules! exchanges {
+    ($keys:ident) => { exchanges!(@64 $keys; 0); exchanges!(@64 $keys; 64); exchanges!(@64 $keys; 128); exchanges!(@64 $keys; 192);
+        exchanges!(@64 $keys; 256); exchanges!(@64 $keys; 320); exchanges!(@64 $keys; 384); exchanges!(@64 $keys; 448); };
+    (@64 $keys:ident; $b:expr) => { exchanges!(@16 $keys; $b); exchanges!(@16 $keys; $b + 16); exchanges!(@16 $keys; $b + 32); exchanges!(@16 $keys; $b + 48); };
+    (@16 $keys:ident; $b:expr) => { exchanges!(@4 $keys; $b); exchanges!(@4 $keys; $b + 4); exchanges!(@4 $keys; $b + 8); exchanges!(@4 $keys; $b + 12); };
+    (@4 $keys:ident; $b:expr) => { exchange::<{ $b }>($keys); exchange::<{ $b + 1 }>($keys); exchange::<{ $b + 2 }>($keys); exchange::<{ $b + 3 }>($keys); };
+}
+const _: () = assert!(NETWORK.1 <= 512, "exchanges! reaches every exchange");
+
+/// `keys` sorted lane by lane by [`NETWORK`].
+#[inline(always)]
+fn sort(keys: &mut [[i32; LANES]; WINDOW]) {
+    exchanges!(keys);
+}
+
 avx2_or_compiled!(
     /// [`medians`], chosen once per bound.
     pub(in crate::denoise::bounds) type Medians;
@@ -108,12 +138,7 @@ pub(in crate::denoise::bounds) fn medians(chosen: &[f32], w: usize, xs: &[usize]
             }
         }
     }
-    let (pairs, len) = &NETWORK;
-    for &(i, j) in &pairs[..*len] {
-        let (a, b) = (keys[usize::from(i)], keys[usize::from(j)]);
-        keys[usize::from(i)] = std::array::from_fn(|l| a[l].min(b[l]));
-        keys[usize::from(j)] = std::array::from_fn(|l| a[l].max(b[l]));
-    }
+    sort(&mut keys);
     for (lane, o) in out[..xs.len()].iter_mut().enumerate() {
         let n = numbers[lane] as usize;
         let at = if upper { n / 2 } else { n.saturating_sub(1) / 2 };
@@ -140,13 +165,11 @@ mod tests {
         // The 0–1 principle: a comparator network that sorts every 0/1 input sorts every
         // input. 2^49 inputs are too many; every input with one run of ones, and random
         // ones, are not.
-        let (pairs, len) = &NETWORK;
-        let sorts = |mut v: [u8; WINDOW]| {
-            for &(i, j) in &pairs[..*len] {
-                let (a, b) = (v[usize::from(i)], v[usize::from(j)]);
-                (v[usize::from(i)], v[usize::from(j)]) = (a.min(b), a.max(b));
-            }
-            v.windows(2).all(|p| p[0] <= p[1])
+        // The network as the medians run it, one input per lane.
+        let sorts = |v: [u8; WINDOW]| {
+            let mut keys: [[i32; LANES]; WINDOW] = std::array::from_fn(|i| [i32::from(v[i]); LANES]);
+            sort(&mut keys);
+            keys.windows(2).all(|p| p[0][0] <= p[1][0])
         };
         for a in 0..WINDOW {
             for b in a..=WINDOW {
