@@ -67,8 +67,9 @@ impl Planes {
     pub fn avg_pool2(&self) -> Planes {
         Planes::by_rows(self.c, self.w / 2, self.h / 2, |c, y, dst| {
             let (r0, r1) = (self.row(c, 2 * y), self.row(c, 2 * y + 1));
-            for (x, d) in dst.iter_mut().enumerate() {
-                *d = (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]) * 0.25;
+            // By exact pairs, which the compiler vectorises (an odd last column is dropped).
+            for ((d, a), b) in dst.iter_mut().zip(r0.chunks_exact(2)).zip(r1.chunks_exact(2)) {
+                *d = (a[0] + a[1] + b[0] + b[1]) * 0.25;
             }
         })
     }
