@@ -41,6 +41,20 @@ impl Planes {
         &self.data[i * self.w * self.h..(i + 1) * self.w * self.h]
     }
 
+    /// Rows `rows` of every plane (`self` itself where that is all of them).
+    pub fn crop_rows(self, rows: std::ops::Range<usize>) -> Planes {
+        assert!(rows.start <= rows.end && rows.end <= self.h, "rows {rows:?} of planes {} tall", self.h);
+        if rows == (0..self.h) {
+            return self;
+        }
+        let w = self.w;
+        let mut data = buffers::with_capacity(self.c * w * rows.len());
+        for c in 0..self.c {
+            data.extend_from_slice(&self.data[(c * self.h + rows.start) * w..(c * self.h + rows.end) * w]);
+        }
+        Planes::from_vec(self.c, w, rows.len(), data)
+    }
+
     /// `self` then `other` (same size), channel-wise.
     pub fn concat(mut self, other: &Planes) -> Planes {
         assert_eq!((self.w, self.h), (other.w, other.h), "concatenated planes differ in size");

@@ -146,6 +146,21 @@ pub fn receptive_radius(a: &Architecture) -> usize {
 /// averages also stop 2-pixel fireflies, but their downward bias on skewed low-sample
 /// noise cost more than they saved: measured on held-out simulator frames.)
 pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes> {
+    let h = noisy.h;
+    colour_pyramid_rows(noisy, levels, clamp, 0..h)
+}
+
+/// Rows each side of its own that a pixel's clamped value reads ([`colour_pyramid`]'s
+/// clamps: two 3×3 passes at most).
+pub const CLAMP_CONTEXT: usize = 2;
+
+/// Rows `keep` of [`colour_pyramid`] (at scale `s`, its rows `keep.start >> s` to
+/// `keep.end >> s`), from `noisy`'s rows `keep` and [`CLAMP_CONTEXT`] rows each side of
+/// them (fewer only where `noisy` ends with the region): the clamp reads those, the
+/// coarser scales pool the rows of `keep` alone, so where `keep` starts on the grid of the
+/// region's coarsest scale every scale is the whole region's, bit for bit, without
+/// evaluating rows beyond what the clamp needs.
+pub fn colour_pyramid_rows(noisy: Planes, levels: usize, clamp: Clamp, keep: std::ops::Range<usize>) -> Vec<Planes> {
     // A fourth plane, where the caller gives one ([`Clamp::reads_variance`]), is each
     // pixel's variance.
     let (noisy, variance) = if noisy.c == 4 {
@@ -159,12 +174,12 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
         (noisy, None)
     };
     let (first, mut excess) = match clamp {
-        Clamp::Hard => (noisy.clamp_to_neighbours(), None),
-        Clamp::Spread => (noisy.clamp_to_neighbours_spreading(), None),
+        Clamp::Hard => (noisy.clamp_to_neighbours().crop_rows(keep), None),
+        Clamp::Spread => (noisy.clamp_to_neighbours_spreading().crop_rows(keep), None),
         Clamp::Coarse => {
             let clamped = noisy.clamp_to_neighbours();
             let excess = noisy.minus(&clamped);
-            (clamped, Some(excess))
+            (clamped.crop_rows(keep.clone()), Some(excess.crop_rows(keep)))
         }
         Clamp::Fine | Clamp::FinePairs | Clamp::FinePairsTwice | Clamp::Significant => {
             let clamped = match (clamp, variance.as_deref()) {
@@ -176,11 +191,10 @@ pub fn colour_pyramid(noisy: Planes, levels: usize, clamp: Clamp) -> Vec<Planes>
                 }
                 _ => noisy.clamp_to_second_neighbour().clamp_to_second_neighbour(),
             };
-            let mut colour = vec![clamped];
+            let mut colour = vec![clamped.crop_rows(keep.clone())];
             if levels > 1 {
-                colour.push(noisy.avg_pool2());
+                colour.push(noisy.crop_rows(keep).avg_pool2());
             }
-            drop(noisy);
             for s in 2..levels {
                 let c = colour[s - 1].avg_pool2();
                 colour.push(c);
@@ -363,6 +377,34 @@ mod tests {
         assert_eq!(pyramid.iter().map(|p| (p.w, p.h)).collect::<Vec<_>>(), [(16, 8), (8, 4), (4, 2)]);
         for p in &pyramid {
             assert!(p.data.iter().all(|&v| v == 0.25), "{:?}", p.data);
+        }
+    }
+
+    #[test]
+    fn rows_of_the_pyramid_from_their_own_rows_and_the_clamps_context_are_the_whole_ones_bits() {
+        // Fireflies, pairs of them and a bright edge on noise, with a variance plane; every
+        // clamp; rows from the coarsest scale's grid (4 rows for 3 scales) with the
+        // clamp's context, cut by the region's top and bottom or not.
+        let (w, h, levels) = (11, 24, 3);
+        let mut x = crate::rng::SplitMix64(5).centred(4 * w * h);
+        x.iter_mut().for_each(|v| *v = v.abs());
+        for (i, v) in [(3 * w + 4, 1e4), (9 * w + 2, 300.0), (9 * w + 3, 280.0), (20 * w + 10, 5e3)] {
+            x[i] = v;
+        }
+        x[15 * w..16 * w].iter_mut().for_each(|v| *v = 40.0);
+        let clamps = [Clamp::Hard, Clamp::Spread, Clamp::Coarse, Clamp::Fine];
+        for clamp in clamps.into_iter().chain([Clamp::FinePairs, Clamp::FinePairsTwice, Clamp::Significant]) {
+            let whole = colour_pyramid(Planes::from_vec(4, w, h, x.clone()), levels, clamp);
+            for (a, b) in [(0usize, 8usize), (4, 12), (8, 24), (12, 16), (0, 24), (20, 24)] {
+                let (lo, hi) = (a.saturating_sub(CLAMP_CONTEXT), (b + CLAMP_CONTEXT).min(h));
+                let window: Vec<f32> = (0..4).flat_map(|c| x[(c * h + lo) * w..(c * h + hi) * w].to_vec()).collect();
+                let rows = colour_pyramid_rows(Planes::from_vec(4, w, hi - lo, window), levels, clamp, a - lo..b - lo);
+                for (s, (got, all)) in rows.iter().zip(&whole).enumerate() {
+                    let want = all.clone().crop_rows(a >> s..b >> s);
+                    let bits = |p: &Planes| p.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(got), bits(&want), "{clamp:?}, rows {a}..{b}, scale {s}");
+                }
+            }
         }
     }
 

@@ -12,7 +12,7 @@
 //! each row equals the whole region's bit for bit.
 
 use super::Architecture;
-use super::multiscale::{self, Backend};
+use super::multiscale::{self, Backend, CLAMP_CONTEXT};
 use super::pyramid::{Region, Weights, apply_rows, blend_scales};
 use crate::kernel::buffers;
 use crate::kernel::planes::{Planes, repeat_pairs};
@@ -321,13 +321,12 @@ impl<'a> Stream<'a> {
         (lo, (b + r).next_multiple_of(2).min(self.height(i)))
     }
 
-    /// Full-resolution colour rows read for rows `[a, b)` of colour scale `s`: two rows
-    /// of context for the clamp, on the grid of the pyramid's coarsest scale so that
-    /// every scale of the window pools the same pixels as the region's.
+    /// Full-resolution colour rows read for rows `[a, b)` of colour scale `s`: those rows
+    /// and two rows of context for the clamp ([`multiscale::colour_pyramid_rows`]; the
+    /// coarser scales pool the rows themselves, whose first is on the grid of the
+    /// coarsest scale, see [`Stream::step_colour`]).
     fn colour_window(&self, s: usize, a: usize, b: usize) -> (usize, usize) {
-        let grid = 1 << (self.arch.layers - 1);
-        let lo = ((a << s).saturating_sub(2) / grid) * grid;
-        (lo, ((b << s) + 2).next_multiple_of(grid).min(self.h))
+        ((a << s).saturating_sub(CLAMP_CONTEXT), ((b << s) + CLAMP_CONTEXT).min(self.h))
     }
 
     /// Evaluates every node as far as its inputs allow, in rounds of one step per node in
@@ -397,11 +396,10 @@ impl<'a> Stream<'a> {
             [(j, lo, hi)] => (self.nodes[j].store.rows(lo, hi).into_owned(), lo),
             _ => unreachable!("the colour reads the noisy colour"),
         };
-        let levels = multiscale::colour_pyramid(noisy, self.arch.layers, self.arch.clamp);
+        let levels = multiscale::colour_pyramid_rows(noisy, self.arch.layers, self.arch.clamp, a - lo..b - lo);
         let scales = (0..self.nodes.len()).filter(|&j| matches!(self.nodes[j].op, Op::Colour { .. }));
-        for (j, level) in scales.collect::<Vec<_>>().into_iter().zip(levels) {
+        for (j, rows) in scales.collect::<Vec<_>>().into_iter().zip(levels) {
             let s = self.nodes[j].level;
-            let rows = crop(level, (a - lo) >> s, (b - lo) >> s);
             let n = &mut self.nodes[j];
             n.store.chunks.push_back((a >> s, rows));
             n.done = b >> s;
@@ -450,7 +448,7 @@ impl<'a> Stream<'a> {
             // The full-resolution head: 1×1, so its window is its rows.
             Op::UpConcat { layer, relu, .. } if r.splits(layer) => {
                 let ((skip, lo), (coarse, _)) = (window(0), window(1));
-                crop(ok(r.conv_up_concat(&coarse, &skip, layer, relu)), a - lo, b - lo)
+                ok(r.conv_up_concat(&coarse, &skip, layer, relu)).crop_rows(a - lo..b - lo)
             }
             Op::UpConcat { coarse, skip, layer, relu } => {
                 let (_, lo, hi) = needs[0];
@@ -494,19 +492,6 @@ fn inputs(op: &Op) -> Vec<usize> {
         Op::Sub { a, b } => vec![a, b],
         Op::Blend { fine, coarse, logits } => vec![fine, logits, coarse],
     }
-}
-
-/// Rows `[a, b)` of `p`.
-fn crop(p: Planes, a: usize, b: usize) -> Planes {
-    if a == 0 && b == p.h {
-        return p;
-    }
-    let w = p.w;
-    let mut data = buffers::with_capacity(p.c * w * (b - a));
-    for c in 0..p.c {
-        data.extend_from_slice(&p.data[(c * p.h + a) * w..(c * p.h + b) * w]);
-    }
-    Planes::from_vec(p.c, w, b - a, data)
 }
 
 #[cfg(test)]
