@@ -80,11 +80,34 @@ fn exchange<const K: usize>(keys: &mut [[i32; LANES]; WINDOW]) {
 
 /// Every exchange of [`NETWORK`] in order: `exchange::<K>` for K below 64 × 8.
 macro_rules! exchanges {
-    ($keys:ident) => { exchanges!(@64 $keys; 0); exchanges!(@64 $keys; 64); exchanges!(@64 $keys; 128); exchanges!(@64 $keys; 192);
-        exchanges!(@64 $keys; 256); exchanges!(@64 $keys; 320); exchanges!(@64 $keys; 384); exchanges!(@64 $keys; 448); };
-    (@64 $keys:ident; $b:expr) => { exchanges!(@16 $keys; $b); exchanges!(@16 $keys; $b + 16); exchanges!(@16 $keys; $b + 32); exchanges!(@16 $keys; $b + 48); };
-    (@16 $keys:ident; $b:expr) => { exchanges!(@4 $keys; $b); exchanges!(@4 $keys; $b + 4); exchanges!(@4 $keys; $b + 8); exchanges!(@4 $keys; $b + 12); };
-    (@4 $keys:ident; $b:expr) => { exchange::<{ $b }>($keys); exchange::<{ $b + 1 }>($keys); exchange::<{ $b + 2 }>($keys); exchange::<{ $b + 3 }>($keys); };
+    ($keys:ident) => {
+        exchanges!(@64 $keys; 0);
+        exchanges!(@64 $keys; 64);
+        exchanges!(@64 $keys; 128);
+        exchanges!(@64 $keys; 192);
+        exchanges!(@64 $keys; 256);
+        exchanges!(@64 $keys; 320);
+        exchanges!(@64 $keys; 384);
+        exchanges!(@64 $keys; 448);
+    };
+    (@64 $keys:ident; $b:expr) => {
+        exchanges!(@16 $keys; $b);
+        exchanges!(@16 $keys; $b + 16);
+        exchanges!(@16 $keys; $b + 32);
+        exchanges!(@16 $keys; $b + 48);
+    };
+    (@16 $keys:ident; $b:expr) => {
+        exchanges!(@4 $keys; $b);
+        exchanges!(@4 $keys; $b + 4);
+        exchanges!(@4 $keys; $b + 8);
+        exchanges!(@4 $keys; $b + 12);
+    };
+    (@4 $keys:ident; $b:expr) => {
+        exchange::<{ $b }>($keys);
+        exchange::<{ $b + 1 }>($keys);
+        exchange::<{ $b + 2 }>($keys);
+        exchange::<{ $b + 3 }>($keys);
+    };
 }
 const _: () = assert!(NETWORK.1 <= 512, "exchanges! reaches every exchange");
 
@@ -165,7 +188,7 @@ mod tests {
         // The 0–1 principle: a comparator network that sorts every 0/1 input sorts every
         // input. 2^49 inputs are too many; every input with one run of ones, and random
         // ones, are not.
-        // The network as the medians run it, one input per lane.
+        // The network as the medians run it (each input in every lane).
         let sorts = |v: [u8; WINDOW]| {
             let mut keys: [[i32; LANES]; WINDOW] = std::array::from_fn(|i| [i32::from(v[i]); LANES]);
             sort(&mut keys);
