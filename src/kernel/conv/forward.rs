@@ -2,7 +2,7 @@
 
 use super::super::planes::{Planes, repeat_pairs};
 use super::super::simd::Isa;
-use super::{ConvLayer, MR};
+use super::{ConvLayer, MR, winograd};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -208,6 +208,20 @@ impl Job<'_> {
     /// `out` points at `cout × h × w` floats, `ys` lie in `oy..oy + h` and inside `src`,
     /// and no other thread writes these rows.
     unsafe fn rows(&self, ys: Range<usize>, out: *mut f32, scratch: &mut Vec<f32>) {
+        if winograd::applies(self.layer, self.w) {
+            let task = winograd::Rows {
+                src: &self.src[(ys.start - self.y0) * self.pw..],
+                plane: self.pw * self.ph,
+                w: self.w,
+                rows: ys.len(),
+                out: out.wrapping_add((ys.start - self.oy) * self.w),
+                out_plane: self.w * self.h,
+                relu: self.relu,
+            };
+            // SAFETY: the caller's contract: the rows' outputs are this task's, and `src`
+            // holds their padded input rows.
+            return unsafe { winograd::rows(self.layer, &task, self.isa, scratch) };
+        }
         #[cfg(target_arch = "x86_64")]
         if self.isa == Isa::Avx512 {
             // SAFETY: the CPU has the instructions (detected); the caller's contract.
@@ -561,9 +575,12 @@ mod tests {
 
     #[test]
     fn matches_candle_conv2d() {
-        // Widths around the 8- and 32-pixel blocks, channels around the 8-channel panels.
+        // Widths around the 8- and 32-pixel blocks, channels around the 8-channel panels;
+        // even widths of 32 channels and more take the Winograd path.
         for (cin, cout, k, w, h) in [
             (3, 5, 3, 37, 6),
+            (32, 9, 3, 38, 5),
+            (40, 17, 3, 100, 3),
             (8, 4, 1, 16, 3),
             (27, 9, 3, 20, 5),
             (2, 3, 3, 5, 4),
@@ -585,7 +602,14 @@ mod tests {
     fn rows_of_planes_handed_over_by_row_are_the_whole_convolutions_bits() {
         // Narrow (flat path) and wide planes, 3×3, 5×5 and 1×1, row ranges that start and
         // end at the plane's edges, inside it, span several bands, or are empty.
-        for (cin, cout, k, w, h) in [(5, 9, 3, 12, 30), (16, 8, 3, 64, 40), (3, 4, 5, 20, 13), (7, 5, 1, 33, 9)] {
+        for (cin, cout, k, w, h) in [
+            (5, 9, 3, 12, 30),
+            (16, 8, 3, 64, 40),
+            (3, 4, 5, 20, 13),
+            (7, 5, 1, 33, 9),
+            (33, 10, 3, 22, 30),
+            (32, 8, 3, 64, 40),
+        ] {
             let input = Planes::from_vec(cin, w, h, SplitMix64(8).centred(cin * w * h));
             let layer =
                 ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k);
@@ -612,7 +636,9 @@ mod tests {
     #[test]
     fn the_fused_decoder_input_gives_the_built_inputs_bits() {
         // Narrow (flat path) and wide planes, several bands, 3×3 and 1×1.
-        for (cc, cs, cout, k, w, h) in [(6, 4, 5, 3, 12, 10), (16, 8, 12, 3, 64, 40), (5, 3, 7, 1, 20, 6)] {
+        for (cc, cs, cout, k, w, h) in
+            [(6, 4, 5, 3, 12, 10), (16, 8, 12, 3, 64, 40), (5, 3, 7, 1, 20, 6), (24, 16, 12, 3, 64, 40)]
+        {
             let coarse = Planes::from_vec(cc, w / 2, h / 2, SplitMix64(4).centred(cc * w * h / 4));
             let skip = Planes::from_vec(cs, w, h, SplitMix64(5).centred(cs * w * h));
             let cin = cc + cs;
@@ -632,10 +658,19 @@ mod tests {
     fn every_instruction_set_gives_the_same_bits() {
         // More input channels than one chunk, more rows than one band, a ragged last
         // block; widths that take the row-wise (45, 21) and the flat (24, 12) AVX-512 paths,
-        // and end AVX2's 16-pixel groups with one or two segments, masked or not.
-        for (cin, cout, k, w, h) in
-            [(20, 11, 3, 45, 11), (20, 11, 3, 24, 11), (7, 9, 3, 12, 5), (6, 5, 1, 12, 9), (5, 6, 3, 21, 4)]
-        {
+        // and end AVX2's 16-pixel groups with one or two segments, masked or not; and the
+        // Winograd path (32 channels and more, even widths), whose flat pairs end a
+        // segment of 16 or AVX2's runs of 8 anywhere, or fill them.
+        for (cin, cout, k, w, h) in [
+            (20, 11, 3, 45, 11),
+            (20, 11, 3, 24, 11),
+            (7, 9, 3, 12, 5),
+            (6, 5, 1, 12, 9),
+            (5, 6, 3, 21, 4),
+            (32, 11, 3, 22, 7),
+            (36, 9, 3, 64, 5),
+            (33, 4, 3, 6, 3),
+        ] {
             let r = (k - 1) / 2;
             let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
             let layer =
@@ -674,18 +709,20 @@ mod tests {
 
     #[test]
     fn a_pixel_does_not_depend_on_where_the_plane_ends() {
-        // The same 40×4 content seen whole and as its left 24 columns: identical bits.
-        let (cin, cout) = (5, 6);
-        let x = SplitMix64(4).centred(cin * 40 * 4);
-        let layer = ConvLayer::new(&SplitMix64(5).centred(cout * cin * 9), &SplitMix64(6).centred(cout), cin, 3);
-        let whole = conv(&Planes::from_vec(cin, 40, 4, x.clone()), &layer, false);
-        let left: Vec<f32> = x.chunks(40).flat_map(|r| r[..24].to_vec()).collect();
-        let part = conv(&Planes::from_vec(cin, 24, 4, left), &layer, false);
-        for c in 0..cout {
-            for y in 0..4 {
-                // Column 23 saw zero padding in the part; the rest must agree exactly.
-                for x in 0..23 {
-                    assert_eq!(part.plane(c)[y * 24 + x].to_bits(), whole.plane(c)[y * 40 + x].to_bits());
+        // The same 40×4 content seen whole and as its left 24 columns: identical bits,
+        // directly and by Winograd (32 channels).
+        for (cin, cout) in [(5, 6), (32, 6)] {
+            let x = SplitMix64(4).centred(cin * 40 * 4);
+            let layer = ConvLayer::new(&SplitMix64(5).centred(cout * cin * 9), &SplitMix64(6).centred(cout), cin, 3);
+            let whole = conv(&Planes::from_vec(cin, 40, 4, x.clone()), &layer, false);
+            let left: Vec<f32> = x.chunks(40).flat_map(|r| r[..24].to_vec()).collect();
+            let part = conv(&Planes::from_vec(cin, 24, 4, left), &layer, false);
+            for c in 0..cout {
+                for y in 0..4 {
+                    // Column 23 saw zero padding in the part; the rest must agree exactly.
+                    for x in 0..23 {
+                        assert_eq!(part.plane(c)[y * 24 + x].to_bits(), whole.plane(c)[y * 40 + x].to_bits(), "{cin}");
+                    }
                 }
             }
         }
