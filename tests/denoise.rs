@@ -1,7 +1,7 @@
 //! The denoiser's contract: finite on hostile input, convex kernels, tiled == untiled,
 //! thread-count independence, a golden image, and the `kpcn denoise` command.
 
-use crate::util::{Rng, cycles_dev, native_frame, tiny_multiscale, tiny_multiscale_levels, write};
+use crate::util::{Rng, cycles_dev, multiscale_levels, native_frame, tiny_multiscale, tiny_multiscale_levels, write};
 use kpcn::denoise::{Denoised, Denoiser, FileJob, FileOptions, Options};
 use kpcn::features::{EPSILON, Features, reflect};
 use kpcn::io::layout::{KpcnInputs, Mapping};
@@ -139,16 +139,22 @@ proptest! {
     #[test]
     fn multiscale_tiles_equal_the_whole_frame_bit_for_bit(
         w in 1usize..48, h in 1usize..40, tile in 1usize..24, seed in 0u64..10_000, hostile in any::<bool>(),
-        clamp in 0usize..7, ladder in any::<bool>(), bounded in any::<bool>()
+        clamp in 0usize..7, ladder in any::<bool>(), bounded in any::<bool>(), wide in any::<bool>()
     ) {
         // Our convolutions sum every pixel in one order, so tiles (on the pooling grid, with
         // the receptive radius as halo, cut at the frame's border radius) reproduce the
-        // frame exactly; hostile inputs stay finite. Every firefly clamp; 2 levels, and the
-        // ladder's 5, whose regions are cut at the frame's edges; with and without the
+        // frame exactly; hostile inputs stay finite. Every firefly clamp; 2 levels, the
+        // ladder's 5, whose regions are cut at the frame's edges, and 3 levels of 32
+        // channels and more, whose 3×3 layers take the Winograd path at every scale but
+        // the coarsest (its regions may start on odd columns); with and without the
         // specular bound.
         let k = frame(w, h, seed, hostile);
         let model = || {
-            let mut m = if ladder { tiny_multiscale_levels(4, 5) } else { tiny_ms() };
+            let mut m = match (ladder, wide) {
+                (true, _) => tiny_multiscale_levels(4, 5),
+                (false, true) => multiscale_levels(4, 3, 32),
+                (false, false) => tiny_ms(),
+            };
             use kpcn::model::Clamp;
             m.arch.clamp = [
                 Clamp::Hard,
@@ -168,6 +174,21 @@ proptest! {
         let tiled = run(model(), &k, Some(tile), 2);
         prop_assert!(all_finite(&whole));
         prop_assert_eq!(whole, tiled);
+    }
+}
+
+/// Tiles of every offset on the pooling grid see the column pairs of the Winograd path
+/// (3×3 layers of 32 channels and more) where the whole frame does: at the coarsest
+/// scale a region may start on an odd column, and there the path is not taken.
+#[test]
+fn winograd_layers_in_tiles_give_the_whole_frames_bits() {
+    // Frame widths whose regions at the coarsest scale are now even, now odd.
+    for w in (96..=136).step_by(8) {
+        let k = frame(w, 12, 3, false);
+        let whole = run(multiscale_levels(4, 3, 32), &k, Some(1024), 2);
+        for tile in [8, 24] {
+            assert_eq!(whole, run(multiscale_levels(4, 3, 32), &k, Some(tile), 2), "{w} wide, tiles of {tile}");
+        }
     }
 }
 

@@ -43,8 +43,10 @@ pub struct SpeedArgs {
     pub threads: Vec<usize>,
     /// Instead of whole frames, time each convolution shape of the first model: forward at
     /// the frame size's scales (as `kpcn denoise` runs it) and forward + backward on a
-    /// training batch (6 patches of 64² plus context). `benches/conv_vs_torch.py` sets
-    /// PyTorch beside these numbers.
+    /// training batch (6 patches of 64² plus context). GFLOP/s counts a direct
+    /// convolution's multiply-adds, so layers that `kpcn denoise` runs by Winograd's F(2, 3)
+    /// (3×3, 32 channels and more) read up to 1.5× the machine's peak.
+    /// `benches/conv_vs_torch.py` sets PyTorch beside these numbers.
     #[arg(long)]
     pub layers: bool,
     /// Output format of `--layers`.
@@ -213,6 +215,7 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
             }
             let x = Planes::from_vec(cin, w, h, kpcn::rng::SplitMix64(1).centred(cin * w * h));
             let layer = ConvLayer::new(&kpcn::rng::SplitMix64(2).centred(cout * cin * k * k), &vec![0.0; cout], cin, k);
+            let layer = if multiscale::winograd_scale(&arch, s) { layer.with_winograd() } else { layer };
             let seconds = fastest(args.repeat, || {
                 std::hint::black_box(conv(&x, &layer, true));
                 Ok(())

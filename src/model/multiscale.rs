@@ -77,6 +77,15 @@ pub fn layer_scale(a: &Architecture, i: usize) -> usize {
     }
 }
 
+/// Whether layers at scale `s` take the convolutions' Winograd path
+/// ([`crate::kernel::conv::ConvLayer::with_winograd`]): where every region's columns
+/// start on an even column at that scale (regions start on multiples of
+/// [`Architecture::alignment`] at full resolution), so a tile's pixels fall in the
+/// column pairs the whole frame's do. The coarsest scale goes directly.
+pub fn winograd_scale(a: &Architecture, s: usize) -> bool {
+    (a.alignment() >> s).is_multiple_of(2)
+}
+
 /// Multiply-adds ×2 per full-resolution pixel of one branch.
 pub fn flops_per_pixel(a: &Architecture) -> f64 {
     let net: f64 = layer_shapes(a)
@@ -367,6 +376,17 @@ impl Backend for Graph<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn winograd_runs_where_every_regions_columns_start_on_an_even_column() {
+        // Regions start on multiples of the alignment at full resolution; at scale s on
+        // multiples of alignment >> s, which must be even.
+        let a = Architecture::ladder(crate::model::Quality::Balanced);
+        let on: Vec<bool> = (0..=a.layers).map(|s| winograd_scale(&a, s)).collect();
+        let expected: Vec<bool> = (0..=a.layers).map(|s| (a.alignment() >> s) >= 2).collect();
+        assert_eq!(on, expected);
+        assert_eq!(on.iter().filter(|&&w| !w).count(), 1, "the coarsest scale goes directly");
+    }
 
     #[test]
     fn an_isolated_firefly_reaches_no_scale() {

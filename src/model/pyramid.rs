@@ -38,10 +38,12 @@ impl Weights {
     pub fn new(arch: &Architecture, weights: &BranchWeights) -> Result<Weights, ModelError> {
         let mut layers = Vec::with_capacity(weights.layers.len());
         let mut last = None;
-        for (wt, b) in &weights.layers {
+        for (i, (wt, b)) in weights.layers.iter().enumerate() {
             let (_, cin, k, _) = wt.dims4()?;
             let (wt, b) = (wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?);
-            layers.push(ConvLayer::new(&wt, &b, cin, k));
+            let layer = ConvLayer::new(&wt, &b, cin, k);
+            let winograd = multiscale::winograd_scale(arch, multiscale::layer_scale(arch, i));
+            layers.push(if winograd { layer.with_winograd() } else { layer });
             last = Some((wt, b, cin));
         }
         let (wt, b, cin) = last.ok_or_else(|| ModelError::Format {

@@ -107,12 +107,18 @@ pub fn tiny_multiscale(seed: u64) -> kpcn::model::Model {
 /// [`tiny_multiscale`] with `levels` pooling levels: 5 gives the ladder's 192-px receptive
 /// radius, beyond the 64 px a region reaches past the frame's edges.
 pub fn tiny_multiscale_levels(seed: u64, levels: usize) -> kpcn::model::Model {
+    multiscale_levels(seed, levels, 4)
+}
+
+/// A multi-scale KPCN of `levels` pooling levels and `channels` at full resolution (from
+/// 32 its 3×3 layers take the convolutions' Winograd path).
+pub fn multiscale_levels(seed: u64, levels: usize, channels: usize) -> kpcn::model::Model {
     use kpcn::model::{Architecture, Design, Kind, Model};
     let arch = Architecture {
         kind: Kind::Kpcn,
         design: Design::MultiScale,
         layers: levels,
-        channels: 4,
+        channels,
         conv_size: 3,
         kernel_size: 3,
         clamp: Default::default(),

@@ -590,7 +590,8 @@ mod tests {
             let x = SplitMix64(1).centred(cin * w * h);
             let wt = SplitMix64(2).centred(cout * cin * k * k);
             let b = SplitMix64(3).centred(cout);
-            let ours = conv(&Planes::from_vec(cin, w, h, x.clone()), &ConvLayer::new(&wt, &b, cin, k), true);
+            let ours =
+                conv(&Planes::from_vec(cin, w, h, x.clone()), &ConvLayer::new(&wt, &b, cin, k).with_winograd(), true);
             let theirs = candle_conv(&x, &wt, &b, cin, k, w, h);
             for (i, (a, b)) in ours.data.iter().zip(&theirs).enumerate() {
                 assert!((a - b.max(0.0)).abs() < 1e-5, "{cin}→{cout} k{k} {w}×{h} at {i}: {a} vs {b}");
@@ -612,7 +613,8 @@ mod tests {
         ] {
             let input = Planes::from_vec(cin, w, h, SplitMix64(8).centred(cin * w * h));
             let layer =
-                ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k);
+                ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k)
+                    .with_winograd();
             let whole = conv(&input, &layer, true);
             for out in [0..h, 0..1, 3..h, 1..h - 1, h / 2..h / 2 + 1, 2..2] {
                 let rows = conv_rows(&layer, true, (w, h), out.clone(), |c, y, dst| {
@@ -643,7 +645,8 @@ mod tests {
             let skip = Planes::from_vec(cs, w, h, SplitMix64(5).centred(cs * w * h));
             let cin = cc + cs;
             let layer =
-                ConvLayer::new(&SplitMix64(6).centred(cout * cin * k * k), &SplitMix64(7).centred(cout), cin, k);
+                ConvLayer::new(&SplitMix64(6).centred(cout * cin * k * k), &SplitMix64(7).centred(cout), cin, k)
+                    .with_winograd();
             let built = conv(&coarse.up_nearest().concat(&skip), &layer, true);
             let fused = conv_up_concat(&coarse, &skip, &layer, true);
             assert_eq!((fused.c, fused.w, fused.h), (cout, w, h));
@@ -674,7 +677,8 @@ mod tests {
             let r = (k - 1) / 2;
             let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
             let layer =
-                ConvLayer::new(&SplitMix64(8).centred(cout * cin * k * k), &SplitMix64(9).centred(cout), cin, k);
+                ConvLayer::new(&SplitMix64(8).centred(cout * cin * k * k), &SplitMix64(9).centred(cout), cin, k)
+                    .with_winograd();
             let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             let run = |isa: Isa| {
                 let mut pad = Vec::new();
@@ -713,7 +717,8 @@ mod tests {
         // directly and by Winograd (32 channels).
         for (cin, cout) in [(5, 6), (32, 6)] {
             let x = SplitMix64(4).centred(cin * 40 * 4);
-            let layer = ConvLayer::new(&SplitMix64(5).centred(cout * cin * 9), &SplitMix64(6).centred(cout), cin, 3);
+            let layer = ConvLayer::new(&SplitMix64(5).centred(cout * cin * 9), &SplitMix64(6).centred(cout), cin, 3)
+                .with_winograd();
             let whole = conv(&Planes::from_vec(cin, 40, 4, x.clone()), &layer, false);
             let left: Vec<f32> = x.chunks(40).flat_map(|r| r[..24].to_vec()).collect();
             let part = conv(&Planes::from_vec(cin, 24, 4, left), &layer, false);

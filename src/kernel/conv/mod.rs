@@ -10,11 +10,11 @@
 //! output channels (half a panel) × 2 segments of 8 pixels; otherwise scalar. Every
 //! output value starts at its bias and adds `input·weight` with one fused multiply-add
 //! per term, in the order (input channel, row, column), wherever it lies in the plane and
-//! whichever path runs, so tiles and bands equal the whole frame bit for bit. 3×3 layers
-//! of 32 input channels or more on even-width planes go by Winograd's F(2, 3) along rows
-//! instead (`winograd`: 6 multiply-adds per channel pair and pixel instead of 9), with
-//! the same guarantees: one order of operations on every path, a value depending only on
-//! its column pair.
+//! whichever path runs, so tiles and bands equal the whole frame bit for bit. Layers
+//! packed [`ConvLayer::with_winograd`] (3×3, 32 input channels or more) go by Winograd's
+//! F(2, 3) along rows instead on even-width planes (`winograd`: 6 multiply-adds per
+//! channel pair and pixel instead of 9), with one order of operations on every path too
+//! and a value depending only on its pair of columns and its 3×3 window's inputs.
 //!
 //! The weight gradient vectorises over pixels (`Taps`), or over output channels for
 //! 3×3 layers wider than 16 (`by_channel`); the input gradient is the forward pass with
@@ -57,8 +57,7 @@ pub struct ConvLayer {
     packed: Vec<f32>,
     /// `ceil(cout / MR)·MR` biases, zero-filled.
     bias: Vec<f32>,
-    /// 3×3 layers of at least `winograd::MIN_CHANNELS` inputs: the panels of
-    /// `winograd::pack` (else empty).
+    /// The panels of `winograd::pack` ([`ConvLayer::with_winograd`]), or empty.
     winograd: Vec<f32>,
 }
 
@@ -79,9 +78,27 @@ impl ConvLayer {
         }
         let mut padded_bias = bias.to_vec();
         padded_bias.resize(blocks * MR, 0.0);
-        let winograd =
-            if k == 3 && cin >= winograd::MIN_CHANNELS { winograd::pack(weight, cout, cin) } else { Vec::new() };
-        ConvLayer { cout, cin, k, packed, bias: padded_bias, winograd }
+        ConvLayer { cout, cin, k, packed, bias: padded_bias, winograd: Vec::new() }
+    }
+
+    /// This layer with Winograd's F(2, 3) panels packed too, where it is 3×3 with at least
+    /// `winograd::MIN_CHANNELS` inputs (else unchanged): planes of even width then take
+    /// that path, where a value depends on its pair of columns. Use it only where every
+    /// plane the layer is given starts on an even column of the frame (the multi-scale
+    /// network's scales whose regions do,
+    /// [`crate::model::multiscale::winograd_scale`]), so tiles still equal the whole frame
+    /// bit for bit.
+    pub fn with_winograd(mut self) -> ConvLayer {
+        if self.k == 3 && self.cin >= winograd::MIN_CHANNELS {
+            // The weights back from the direct panels, so callers need not keep them.
+            let kk = self.cin * 9;
+            let weight: Vec<f32> = (0..self.cout)
+                .flat_map(|co| (0..kk).map(move |t| (co, t)))
+                .map(|(co, t)| self.packed[((co / MR) * kk + t) * MR + co % MR])
+                .collect();
+            self.winograd = winograd::pack(&weight, self.cout, self.cin);
+        }
+        self
     }
 
     /// The layer whose output is this one's input gradient: transposed channels, flipped

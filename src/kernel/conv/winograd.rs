@@ -9,9 +9,15 @@
 //! the order input channel, kernel row) and the pair is `bias + m0 + m1 + m2` and `bias +
 //! m1 − m2 − m3`, summed in that order. Every path (AVX-512, AVX2, scalar) does exactly
 //! these operations, so all give the same bits, and a pixel's value depends only on its
-//! column pair, never on the rows or tiles around it. The transformed rows of a task lie
-//! flat (`rows × w/2` pairs per channel and term), so the three kernel rows are three
-//! offsets in one array and segments run across row ends with no padding columns.
+//! column pair, never on the rows or tiles around it. Each output's sums read only its
+//! own 3×3 window's inputs (`m3` never enters the first of a pair, `m0` never the
+//! second), so a value depends on exactly what the direct sum reads: regions whose halo
+//! is the network's receptive radius still give the whole frame's bits. (F(4, 3), with
+//! half the multiply-adds, mixes up to three more columns into each output's rounding,
+//! which such halos do not cover.) The formulas are written once, for one lane's values
+//! of any path (`transform_pair`, `pair_outputs`). The transformed rows of a task lie flat
+//! (`rows × w/2` pairs per channel and term), so the three kernel rows are three offsets
+//! in one array and segments run across row ends with no padding columns.
 
 use super::{ConvLayer, MR};
 use crate::kernel::simd::Isa;
@@ -47,7 +53,7 @@ pub(super) fn pack(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
 
 /// Whether [`rows`] computes `layer` on planes `w` wide.
 pub(super) fn applies(layer: &ConvLayer, w: usize) -> bool {
-    layer.k == 3 && layer.cin >= MIN_CHANNELS && w.is_multiple_of(2)
+    !layer.winograd.is_empty() && w.is_multiple_of(2)
 }
 
 /// A task's rows: input planes zero-padded by one pixel, `pw = w + 2` wide, `plane`
@@ -63,13 +69,11 @@ pub(super) struct Rows<'a> {
     pub relu: bool,
 }
 
-/// Up to 16 consecutive flat pairs (running on across row ends).
+/// Up to 16 consecutive flat pairs (running on across row ends): the first pair's
+/// transformed values at `f` in a term's rows, its outputs at `2f` in an output plane.
 #[derive(Clone, Copy)]
 struct Segment {
-    /// Offset of the first pair's transformed values in a term's rows.
-    v: usize,
-    /// Offset of its first output in an output plane.
-    out: usize,
+    f: usize,
     /// Pairs in the segment.
     pairs: usize,
 }
@@ -103,8 +107,7 @@ pub(super) unsafe fn rows(layer: &ConvLayer, task: &Rows, isa: Isa, scratch: &mu
         }
     }
     let n = rows * tw;
-    let segments: Vec<Segment> =
-        (0..n).step_by(16).map(|f| Segment { v: f, out: 2 * f, pairs: (n - f).min(16) }).collect();
+    let segments: Vec<Segment> = (0..n).step_by(16).map(|f| Segment { f, pairs: (n - f).min(16) }).collect();
     let v = Transformed { v: scratch, stride, row: tw };
     #[cfg(target_arch = "x86_64")]
     match isa {
@@ -132,13 +135,84 @@ struct Transformed<'a> {
 fn segment_scalar(layer: &ConvLayer, task: &Rows, v: &Transformed, seg: &Segment, ps: std::ops::Range<usize>) {
     for p in ps {
         for co in 0..layer.cout {
-            let m = terms(layer, v, co, seg.v + p);
+            let m = terms(layer, v, co, seg.f + p);
             let (e, o) = pair(m, layer.bias[co], task.relu);
             // SAFETY: inside the task's output (the caller's contract of [`rows`]).
             unsafe {
-                *task.out.add(co * task.out_plane + seg.out + 2 * p) = e;
-                *task.out.add(co * task.out_plane + seg.out + 2 * p + 1) = o;
+                *task.out.add(co * task.out_plane + 2 * (seg.f + p)) = e;
+                *task.out.add(co * task.out_plane + 2 * (seg.f + p) + 1) = o;
             }
+        }
+    }
+}
+
+/// The operations every path does, on one lane's values: `f32` here, the AVX-512 and
+/// AVX2 registers in `x86`, so each formula below is written once for all of them.
+trait Lane: Copy {
+    fn add(self, b: Self) -> Self;
+    fn sub(self, b: Self) -> Self;
+}
+
+impl Lane for f32 {
+    #[inline(always)]
+    fn add(self, b: f32) -> f32 {
+        self + b
+    }
+    #[inline(always)]
+    fn sub(self, b: f32) -> f32 {
+        self - b
+    }
+}
+
+/// A pair's four terms from its four padded inputs.
+#[inline(always)]
+fn transform_pair<T: Lane>([d0, d1, d2, d3]: [T; 4]) -> [T; TERMS] {
+    [d0.sub(d2), d1.add(d2), d2.sub(d1), d1.sub(d3)]
+}
+
+/// A pair's two outputs from its four sums (before the ReLU): the first never reads `m3`,
+/// the second never `m0`.
+#[inline(always)]
+fn pair_outputs<T: Lane>([m0, m1, m2, m3]: [T; TERMS], bias: T) -> [T; 2] {
+    [bias.add(m0).add(m1).add(m2), bias.add(m1).sub(m2).sub(m3)]
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::Lane;
+    use std::arch::x86_64::*;
+
+    /// An AVX-512 register of 16 lanes.
+    #[derive(Clone, Copy)]
+    pub(super) struct Z(pub __m512);
+
+    impl Lane for Z {
+        #[inline(always)]
+        fn add(self, b: Z) -> Z {
+            // SAFETY: values of this type exist only where AVX-512F was detected.
+            Z(unsafe { _mm512_add_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn sub(self, b: Z) -> Z {
+            // SAFETY: as above.
+            Z(unsafe { _mm512_sub_ps(self.0, b.0) })
+        }
+    }
+
+    /// An AVX register of 8 lanes.
+    #[derive(Clone, Copy)]
+    pub(super) struct Y(pub __m256);
+
+    impl Lane for Y {
+        #[inline(always)]
+        fn add(self, b: Y) -> Y {
+            // SAFETY: values of this type exist only where AVX2 was detected.
+            Y(unsafe { _mm256_add_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn sub(self, b: Y) -> Y {
+            // SAFETY: as above.
+            Y(unsafe { _mm256_sub_ps(self.0, b.0) })
         }
     }
 }
@@ -147,11 +221,10 @@ fn segment_scalar(layer: &ConvLayer, task: &Rows, v: &Transformed, seg: &Segment
 #[inline]
 fn transform(d: &[f32], v: &mut [f32], stride: usize, tw: usize) {
     for t in 0..tw {
-        let [d0, d1, d2, d3] = [d[2 * t], d[2 * t + 1], d[2 * t + 2], d[2 * t + 3]];
-        v[t] = d0 - d2;
-        v[stride + t] = d1 + d2;
-        v[2 * stride + t] = d2 - d1;
-        v[3 * stride + t] = d1 - d3;
+        let x = transform_pair([d[2 * t], d[2 * t + 1], d[2 * t + 2], d[2 * t + 3]]);
+        for (q, x) in x.into_iter().enumerate() {
+            v[q * stride + t] = x;
+        }
     }
 }
 
@@ -173,12 +246,11 @@ fn terms(layer: &ConvLayer, v: &Transformed, co: usize, f: usize) -> [f32; TERMS
     m
 }
 
-/// The output pair from the four sums.
+/// [`pair_outputs`] of one lane, with the ReLU.
 #[inline(always)]
-fn pair([m0, m1, m2, m3]: [f32; TERMS], bias: f32, relu: bool) -> (f32, f32) {
-    let e = bias + m0 + m1 + m2;
-    let o = bias + m1 - m2 - m3;
-    if relu { (e.max(0.0), o.max(0.0)) } else { (e, o) }
+fn pair(m: [f32; TERMS], bias: f32, relu: bool) -> (f32, f32) {
+    let [e, o] = pair_outputs(m, bias).map(|y| if relu { y.max(0.0) } else { y });
+    (e, o)
 }
 
 /// [`transform`] with AVX-512, 16 pairs at a time.
@@ -206,10 +278,9 @@ unsafe fn transform_avx512(d: &[f32], v: *mut f32, stride: usize, tw: usize) {
             let (d0, d1) = (_mm512_permutex2var_ps(a, even, b), _mm512_permutex2var_ps(a, odd, b));
             let (d2, d3) = (_mm512_permutex2var_ps(c, even, e), _mm512_permutex2var_ps(c, odd, e));
             let m = if tw - t >= 16 { u16::MAX } else { (1u16 << (tw - t)) - 1 };
-            _mm512_mask_storeu_ps(v.add(t), m, _mm512_sub_ps(d0, d2));
-            _mm512_mask_storeu_ps(v.add(stride + t), m, _mm512_add_ps(d1, d2));
-            _mm512_mask_storeu_ps(v.add(2 * stride + t), m, _mm512_sub_ps(d2, d1));
-            _mm512_mask_storeu_ps(v.add(3 * stride + t), m, _mm512_sub_ps(d1, d3));
+            for (q, x) in transform_pair([d0, d1, d2, d3].map(x86::Z)).into_iter().enumerate() {
+                _mm512_mask_storeu_ps(v.add(q * stride + t), m, x.0);
+            }
         }
     }
 }
@@ -267,7 +338,7 @@ unsafe fn block_avx512<const M: usize>(
                 for ky in 0..3 {
                     let mut x = [_mm512_setzero_ps(); NV];
                     for (i, xi) in x.iter_mut().enumerate() {
-                        let at = rows.wrapping_add(group[i].v + ky * v.row);
+                        let at = rows.wrapping_add(group[i].f + ky * v.row);
                         *xi = _mm512_maskz_loadu_ps(mask(group[i].pairs), at);
                     }
                     for (j, accj) in acc.iter_mut().enumerate() {
@@ -291,13 +362,10 @@ unsafe fn block_avx512<const M: usize>(
         for (j, sj) in sums.iter().enumerate() {
             let bias = _mm512_set1_ps(layer.bias[b * MR + j]);
             let dst = task.out.wrapping_add((b * MR + j) * task.out_plane);
-            for (&[m0, m1, m2, m3], seg) in sj.iter().zip(group) {
-                let mut e = _mm512_add_ps(_mm512_add_ps(_mm512_add_ps(bias, m0), m1), m2);
-                let mut o = _mm512_sub_ps(_mm512_sub_ps(_mm512_add_ps(bias, m1), m2), m3);
-                if task.relu {
-                    (e, o) = (_mm512_max_ps(e, zero), _mm512_max_ps(o, zero));
-                }
-                let (at, n) = (dst.wrapping_add(seg.out), 2 * seg.pairs);
+            for (m, seg) in sj.iter().zip(group) {
+                let [e, o] = pair_outputs(m.map(x86::Z), x86::Z(bias))
+                    .map(|y| if task.relu { _mm512_max_ps(y.0, zero) } else { y.0 });
+                let (at, n) = (dst.wrapping_add(2 * seg.f), 2 * seg.pairs);
                 _mm512_mask_storeu_ps(at, mask(n), _mm512_permutex2var_ps(e, lo, o));
                 _mm512_mask_storeu_ps(
                     at.wrapping_add(16),
@@ -328,11 +396,11 @@ unsafe fn gemm_avx2(layer: &ConvLayer, task: &Rows, v: &Transformed, segments: &
             // SAFETY: the caller's contract; whole runs of 8 pairs lie in the segment.
             unsafe {
                 while p + 16 <= whole {
-                    block_avx2::<2>(layer, task, v, seg.v + p, seg.out + 2 * p, c0);
+                    block_avx2::<2>(layer, task, v, seg.f + p, c0);
                     p += 16;
                 }
                 if p < whole {
-                    block_avx2::<1>(layer, task, v, seg.v + p, seg.out + 2 * p, c0);
+                    block_avx2::<1>(layer, task, v, seg.f + p, c0);
                 }
             }
         }
@@ -342,20 +410,13 @@ unsafe fn gemm_avx2(layer: &ConvLayer, task: &Rows, v: &Transformed, segments: &
 }
 
 /// Output channels `c0..` (up to [`M_AVX2`]) × `NV` runs of 8 flat pairs from `f`,
-/// whose outputs start at `out` in each plane: `M_AVX2·NV` accumulators.
+/// whose outputs start at `2f` in each plane: `M_AVX2·NV` accumulators.
 ///
 /// # Safety
 /// As [`gemm_avx2`], and the `8·NV` pairs from `f` lie in the task.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn block_avx2<const NV: usize>(
-    layer: &ConvLayer,
-    task: &Rows,
-    v: &Transformed,
-    f: usize,
-    out: usize,
-    c0: usize,
-) {
+unsafe fn block_avx2<const NV: usize>(layer: &ConvLayer, task: &Rows, v: &Transformed, f: usize, c0: usize) {
     use std::arch::x86_64::*;
     let (cin, m) = (layer.cin, (layer.cout - c0).min(M_AVX2));
     let (b, j0) = (c0 / MR, c0 % MR);
@@ -389,13 +450,10 @@ unsafe fn block_avx2<const NV: usize>(
         let zero = _mm256_setzero_ps();
         for (j, sj) in sums.iter().enumerate().take(m) {
             let bias = _mm256_set1_ps(layer.bias[c0 + j]);
-            let dst = task.out.add((c0 + j) * task.out_plane + out);
-            for (i, &[m0, m1, m2, m3]) in sj.iter().enumerate() {
-                let mut e = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(bias, m0), m1), m2);
-                let mut o = _mm256_sub_ps(_mm256_sub_ps(_mm256_add_ps(bias, m1), m2), m3);
-                if task.relu {
-                    (e, o) = (_mm256_max_ps(e, zero), _mm256_max_ps(o, zero));
-                }
+            let dst = task.out.add((c0 + j) * task.out_plane + 2 * f);
+            for (i, m) in sj.iter().enumerate() {
+                let [e, o] = pair_outputs(m.map(x86::Y), x86::Y(bias))
+                    .map(|y| if task.relu { _mm256_max_ps(y.0, zero) } else { y.0 });
                 // Interleave within 128-bit lanes, then put the lanes in order.
                 let (l, h) = (_mm256_unpacklo_ps(e, o), _mm256_unpackhi_ps(e, o));
                 _mm256_storeu_ps(dst.add(16 * i), _mm256_permute2f128_ps(l, h, 0x20));
