@@ -18,6 +18,12 @@ pub fn avx512() -> bool {
     })
 }
 
+/// The mask of an AVX-512 load or store of the first `left` of 16 lanes (all 16 when
+/// `left ≥ 16`).
+pub fn mask16(left: usize) -> u16 {
+    if left >= 16 { u16::MAX } else { (1u16 << left) - 1 }
+}
+
 /// The vector instruction set of a kernel, picked at run time.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub enum Isa {
@@ -222,7 +228,7 @@ apply_row! {
     /// (w + k − 1)`, each `out` row `w` long, `y < h`.
     #[target_feature(enable = "avx512f")]
     apply_row, 16, exp_nonpositive,
-    mask |left| if left >= 16 { u16::MAX } else { (1u16 << left) - 1 },
+    mask |left| mask16(left),
     load |ptr, mask| _mm512_maskz_loadu_ps(mask, ptr),
     store |dst, mask, v| _mm512_mask_storeu_ps(dst, mask, v),
     _mm512_set1_ps, _mm512_setzero_ps, _mm512_min_ps, _mm512_max_ps, _mm512_add_ps, _mm512_sub_ps,

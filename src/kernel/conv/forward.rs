@@ -1,7 +1,7 @@
 //! The forward pass: a register-blocked direct convolution over zero-padded bands of rows.
 
 use super::super::planes::{Planes, repeat_pairs};
-use super::super::simd::Isa;
+use super::super::simd::{Isa, mask16};
 use super::{ConvLayer, MR, winograd};
 use rayon::prelude::*;
 use std::ops::Range;
@@ -285,7 +285,6 @@ impl Job<'_> {
         let (w, h, pw) = (self.w, self.h, self.pw);
         let (k2, kk, plane) = (l.k * l.k, l.cin * l.k * l.k, pw * self.ph);
         let rows = ys.len();
-        let mask = |left: usize| if left >= 16 { u16::MAX } else { (1u16 << left) - 1 };
         let flat = pw == w || 16 * w.div_ceil(16) > pw + pw / 16;
         let first = (ys.start - self.y0) * pw;
         let (segments, dst, out_plane): (Vec<Segment>, *mut f32, usize) = if !flat {
@@ -295,7 +294,7 @@ impl Job<'_> {
                     (0..w).step_by(16).map(move |x| Segment {
                         src: (y - self.y0) * pw + x,
                         dst: (y - self.oy) * w + x,
-                        mask: mask(w - x),
+                        mask: mask16(w - x),
                     })
                 })
                 .collect();
@@ -310,7 +309,7 @@ impl Job<'_> {
                 (scratch.as_mut_ptr(), 0)
             };
             let segments =
-                (0..n).step_by(16).map(|q| Segment { src: first + q, dst: base + q, mask: mask(n - q) }).collect();
+                (0..n).step_by(16).map(|q| Segment { src: first + q, dst: base + q, mask: mask16(n - q) }).collect();
             (segments, dst, if pw == w { w * h } else { n })
         };
         // Input channels go through in chunks of about 144 terms, so one chunk's input rows

@@ -297,7 +297,7 @@ impl Taps<'_> {
         /// AVX-512F is available.
         #[target_feature(enable = "avx512f")]
         sum_avx512, 16, _mm512_setzero_ps(),
-        mask |left| if left >= 16 { u16::MAX } else { (1u16 << left) - 1 },
+        mask |left| crate::kernel::simd::mask16(left),
         load |ptr, mask| _mm512_maskz_loadu_ps(mask, ptr),
         _mm512_fmadd_ps,
         get |q| _mm512_loadu_ps(q),

@@ -20,7 +20,7 @@
 //! in one array and segments run across row ends with no padding columns.
 
 use super::{ConvLayer, MR};
-use crate::kernel::simd::Isa;
+use crate::kernel::simd::{Isa, mask16};
 
 /// Winograd's terms per column pair.
 const TERMS: usize = 4;
@@ -265,19 +265,15 @@ unsafe fn transform_avx512(d: &[f32], v: *mut f32, stride: usize, tw: usize) {
     let even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
     let odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
     let len = d.len();
-    let mask = |from: usize| {
-        let left = len.saturating_sub(from);
-        if left >= 16 { u16::MAX } else { (1u16 << left) - 1 }
-    };
     // SAFETY: loads are masked to `d`, stores to the tw values of each term.
     unsafe {
-        let load = |at: usize| _mm512_maskz_loadu_ps(mask(at), d.as_ptr().add(at.min(len)));
+        let load = |at: usize| _mm512_maskz_loadu_ps(mask16(len.saturating_sub(at)), d.as_ptr().add(at.min(len)));
         for t in (0..tw).step_by(16) {
             let (a, b) = (load(2 * t), load(2 * t + 16));
             let (c, e) = (load(2 * t + 2), load(2 * t + 18));
             let (d0, d1) = (_mm512_permutex2var_ps(a, even, b), _mm512_permutex2var_ps(a, odd, b));
             let (d2, d3) = (_mm512_permutex2var_ps(c, even, e), _mm512_permutex2var_ps(c, odd, e));
-            let m = if tw - t >= 16 { u16::MAX } else { (1u16 << (tw - t)) - 1 };
+            let m = mask16(tw - t);
             for (q, x) in transform_pair([d0, d1, d2, d3].map(x86::Z)).into_iter().enumerate() {
                 _mm512_mask_storeu_ps(v.add(q * stride + t), m, x.0);
             }
@@ -323,7 +319,6 @@ unsafe fn block_avx512<const M: usize>(
 ) {
     use std::arch::x86_64::*;
     let cin = layer.cin;
-    let mask = |n: usize| if n >= 16 { u16::MAX } else { (1u16 << n) - 1 };
     // SAFETY: masked loads stay in the transformed rows (each term's rows end with 16
     // spare floats), masked stores in the task's output; pointers to masked-off lanes
     // are only formed (`wrapping_add`), never read.
@@ -339,7 +334,7 @@ unsafe fn block_avx512<const M: usize>(
                     let mut x = [_mm512_setzero_ps(); NV];
                     for (i, xi) in x.iter_mut().enumerate() {
                         let at = rows.wrapping_add(group[i].f + ky * v.row);
-                        *xi = _mm512_maskz_loadu_ps(mask(group[i].pairs), at);
+                        *xi = _mm512_maskz_loadu_ps(mask16(group[i].pairs), at);
                     }
                     for (j, accj) in acc.iter_mut().enumerate() {
                         let wv = _mm512_set1_ps(*wp.add(j));
@@ -366,10 +361,10 @@ unsafe fn block_avx512<const M: usize>(
                 let [e, o] = pair_outputs(m.map(x86::Z), x86::Z(bias))
                     .map(|y| if task.relu { _mm512_max_ps(y.0, zero) } else { y.0 });
                 let (at, n) = (dst.wrapping_add(2 * seg.f), 2 * seg.pairs);
-                _mm512_mask_storeu_ps(at, mask(n), _mm512_permutex2var_ps(e, lo, o));
+                _mm512_mask_storeu_ps(at, mask16(n), _mm512_permutex2var_ps(e, lo, o));
                 _mm512_mask_storeu_ps(
                     at.wrapping_add(16),
-                    mask(n.saturating_sub(16)),
+                    mask16(n.saturating_sub(16)),
                     _mm512_permutex2var_ps(e, hi, o),
                 );
             }
