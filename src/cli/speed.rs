@@ -44,8 +44,9 @@ pub struct SpeedArgs {
     /// Instead of whole frames, time each convolution shape of the first model: forward at
     /// the frame size's scales (as `kpcn denoise` runs it) and forward + backward on a
     /// training batch (6 patches of 64² plus context). GFLOP/s counts a direct
-    /// convolution's multiply-adds, so layers that `kpcn denoise` runs by Winograd's F(2, 3)
-    /// (3×3, 32 channels and more) read up to 1.5× the machine's peak.
+    /// convolution's multiply-adds, so 3×3 layers that `kpcn denoise` runs by Winograd's
+    /// minimal filtering (F(4, 3) at full and half resolution from 16 input channels,
+    /// F(2, 3) below from 32) read up to 2× or 1.5× the machine's peak.
     /// `benches/conv_vs_torch.py` sets PyTorch beside these numbers.
     #[arg(long)]
     pub layers: bool,
@@ -215,7 +216,7 @@ fn layers(args: &SpeedArgs) -> anyhow::Result<()> {
             }
             let x = Planes::from_vec(cin, w, h, kpcn::rng::SplitMix64(1).centred(cin * w * h));
             let layer = ConvLayer::new(&kpcn::rng::SplitMix64(2).centred(cout * cin * k * k), &vec![0.0; cout], cin, k);
-            let layer = if multiscale::winograd_scale(&arch, s) { layer.with_winograd() } else { layer };
+            let layer = multiscale::inference_layer(&arch, s, layer);
             let seconds = fastest(args.repeat, || {
                 std::hint::black_box(conv(&x, &layer, true));
                 Ok(())

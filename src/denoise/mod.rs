@@ -204,7 +204,7 @@ impl Denoiser {
     /// The width of the region a stream runs down on a `width`-wide frame (the frame with
     /// the network's reach each side), and the rows it holds at most.
     fn stream_region(&self, width: usize) -> (usize, usize) {
-        let (_, rw, _) = self.reach().region(0, width, width);
+        let (_, rw, _) = self.reach().columns(0, width, width);
         (rw, crate::model::stream::held_rows(&self.model.arch, rw))
     }
 
@@ -223,8 +223,15 @@ impl Denoiser {
     pub fn reach(&self) -> tile::Reach {
         let arch = &self.model.arch;
         let radius = arch.feature_radius().max(arch.kernel_radius());
-        let border = if arch.design == Design::MultiScale { arch.border_radius() } else { radius };
-        tile::Reach { radius, border, align: arch.alignment() }
+        match arch.design {
+            Design::MultiScale => tile::Reach {
+                radius,
+                column_radius: radius.max(crate::model::multiscale::column_radius(arch)),
+                border: arch.border_radius(),
+                align: arch.alignment(),
+            },
+            Design::Flat => tile::Reach::square(radius, radius, arch.alignment()),
+        }
     }
 
     /// The tiles of rows `rows` of a `width`×`total_rows` frame (or band with context
@@ -248,7 +255,7 @@ impl Denoiser {
         // Never tiles smaller than twice the network's reach, whose regions would be
         // mostly context (the default's 192 px at a 64 MB budget: 32-px tiles, 24× slower):
         // over budget rather than several times slower, as bands are.
-        let side = (2 * self.reach().radius).next_multiple_of(arch.alignment());
+        let side = (2 * self.reach().column_radius).next_multiple_of(arch.alignment());
         let budget = budget.max(BRANCHES_AT_ONCE * arch.region_bytes(2 * side, 2 * side, side, side));
         let h = rows.end.saturating_sub(rows.start);
         let (tw, th) = match self.options.tile_size {
@@ -289,8 +296,8 @@ impl Denoiser {
 
     /// The network's working bytes on tile `t` (its region with context).
     fn tile_bytes(&self, t: &Tile) -> usize {
-        let r = self.reach().radius;
-        BRANCHES_AT_ONCE * self.model.arch.region_bytes(t.w + 2 * r, t.h + 2 * r, t.w, t.h)
+        let r = self.reach();
+        BRANCHES_AT_ONCE * self.model.arch.region_bytes(t.w + 2 * r.column_radius, t.h + 2 * r.radius, t.w, t.h)
     }
 
     /// Denoises one frame. `progress` is called after every tile, on the calling thread;
@@ -482,7 +489,7 @@ impl Denoiser {
     fn branch_multiscale(&self, f: &Features, b: Branch, t: &Tile) -> Result<[Vec<f32>; 3], DenoiseError> {
         let arch = &self.model.arch;
         let reach = self.reach();
-        let ((x0, rw, ox), (y0, rh, oy)) = (reach.region(t.x, t.w, f.width), reach.region(t.y, t.h, f.height));
+        let ((x0, rw, ox), (y0, rh, oy)) = (reach.columns(t.x, t.w, f.width), reach.rows(t.y, t.h, f.height));
         let [diffuse, specular] = self.pyramid.as_ref().expect("built in new for a multi-scale model");
         let weights = match b {
             Branch::Diffuse => diffuse,

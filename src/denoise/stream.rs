@@ -52,7 +52,7 @@ impl<'a> FrameStream<'a> {
         }
         let [diffuse, specular] = denoiser.pyramid.as_ref()?;
         let reach = denoiser.reach();
-        let (x, y) = (reach.region(0, width, width), reach.region(0, height, height));
+        let (x, y) = (reach.columns(0, width, width), reach.rows(0, height, height));
         let arch = &denoiser.model.arch;
         Some(FrameStream {
             denoiser,
@@ -73,7 +73,7 @@ impl<'a> FrameStream<'a> {
     /// Rows a band's features are read beyond the frame's top and bottom edges (mirrored),
     /// so the first and the last band must be taller than this.
     pub(super) fn mirrored_rows(denoiser: &Denoiser, height: usize) -> usize {
-        let (y0, rh, _) = denoiser.reach().region(0, height, height);
+        let (y0, rh, _) = denoiser.reach().rows(0, height, height);
         (y0.unsigned_abs()).max((y0 + rh as isize) as usize - height)
     }
 

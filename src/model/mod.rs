@@ -139,7 +139,7 @@ mod tests {
         let budget = 256 << 20;
         let side = |a: Architecture, budget: usize, w: usize, h: usize| {
             let r = a.feature_radius().max(a.kernel_radius());
-            let reach = Reach { radius: r, border: r, align: 1 };
+            let reach = Reach::square(r, r, 1);
             size_for_regions(
                 Axis::whole(w),
                 Axis::whole(h),

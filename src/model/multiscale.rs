@@ -27,6 +27,7 @@
 
 use super::{Architecture, BranchWeights, Clamp, ModelError, SIGNIFICANT_ERRORS, ScaleBlend};
 use crate::features::INPUT_CHANNELS;
+use crate::kernel::conv::{ConvLayer, Winograd};
 use crate::kernel::ops::Ops;
 use crate::kernel::planes::Planes;
 use candle_core::Tensor;
@@ -77,13 +78,33 @@ pub fn layer_scale(a: &Architecture, i: usize) -> usize {
     }
 }
 
-/// Whether layers at scale `s` take the convolutions' Winograd path
-/// ([`crate::kernel::conv::ConvLayer::with_winograd`]): where every region's columns
-/// start on an even column at that scale (regions start on multiples of
-/// [`Architecture::alignment`] at full resolution), so a tile's pixels fall in the
-/// column pairs the whole frame's do. The coarsest scale goes directly.
-pub fn winograd_scale(a: &Architecture, s: usize) -> bool {
-    (a.alignment() >> s).is_multiple_of(2)
+/// Which Winograd filter the 3×3 layers at scale `s` take
+/// ([`crate::kernel::conv::ConvLayer::with_winograd`]), if any: one whose tiles of
+/// columns start where every region's do at that scale (regions start on multiples of
+/// [`Architecture::alignment`] at full resolution), so a tile's pixels fall in the tiles
+/// of columns the whole frame's do. F(4, 3) at the two finest scales, where it saves the
+/// most; F(2, 3) where columns start even; the coarsest scale goes directly. F(4, 3) mixes
+/// columns beyond an output's 3×3 window into its rounding, which [`column_radius`]
+/// covers: on the finest scales that costs column tiles a little context (16 px for the
+/// ladder), on every scale it would cost them 88.
+pub fn winograd_scale(a: &Architecture, s: usize) -> Option<Winograd> {
+    let start = a.alignment() >> s;
+    if s < 2 && start.is_multiple_of(Winograd::F4.tile()) {
+        Some(Winograd::F4)
+    } else if start.is_multiple_of(Winograd::F2.tile()) {
+        Some(Winograd::F2)
+    } else {
+        None
+    }
+}
+
+/// `layer` packed for inference at scale `s`: with the Winograd panels of
+/// [`winograd_scale`]'s filter, if any.
+pub fn inference_layer(a: &Architecture, s: usize, layer: ConvLayer) -> ConvLayer {
+    match winograd_scale(a, s) {
+        Some(filter) => layer.with_winograd(filter),
+        None => layer,
+    }
 }
 
 /// Multiply-adds ×2 per full-resolution pixel of one branch.
@@ -103,24 +124,49 @@ pub fn flops_per_pixel(a: &Architecture) -> f64 {
 /// the result. Computed exactly by following, through every layer, the input span
 /// `[2^s·i + lo, 2^s·i + hi]` that pixel `i` of a scale-`s` tensor depends on.
 pub fn receptive_radius(a: &Architecture) -> usize {
+    radius(a, |_, _| 0).next_multiple_of(a.alignment())
+}
+
+/// [`receptive_radius`] along rows, where inference's F(4, 3) layers
+/// ([`winograd_scale`]) read [`Winograd::extra_columns`] more columns each side into an
+/// output's rounding: the context regions need across columns for tiles to give the
+/// whole frame's bits. (Across rows, and in value, the reach is [`receptive_radius`].)
+pub fn column_radius(a: &Architecture) -> usize {
+    radius(a, |s, cin| winograd_extra(a, s, cin)).next_multiple_of(a.alignment())
+}
+
+/// Pixels of scale `s` each side that a 3×3 layer of `cin` inputs reads into an
+/// output's rounding beyond its window, by its Winograd filter.
+fn winograd_extra(a: &Architecture, s: usize, cin: usize) -> i64 {
+    winograd_scale(a, s).filter(|w| w.takes(cin, a.conv_size)).map_or(0, Winograd::extra_columns) as i64
+}
+
+/// The reach (not rounded) with every 3×3 layer at scale `s` of `cin` inputs reading
+/// `extra(s, cin)` more pixels (of that scale) each side.
+fn radius(a: &Architecture, extra: impl Fn(usize, usize) -> i64) -> usize {
     type Span = (i64, i64);
     let l = a.layers;
     let px = |s: usize| 1i64 << s;
     let grow = |(lo, hi): Span, by: i64| (lo - by, hi + by);
     let union = |a: Span, b: Span| (a.0.min(b.0), a.1.max(b.1));
     let c = ((a.conv_size - 1) / 2) as i64;
-    let conv = |t: Span, s: usize| grow(t, c * px(s));
+    let conv = |t: Span, s: usize, cin: usize| grow(t, (c + extra(s, cin)) * px(s));
     let pool = |(lo, hi): Span, s: usize| (lo, hi + px(s)); // scale s → s + 1
     let up_nearest = |(lo, hi): Span, s: usize| (lo - px(s), hi); // scale s + 1 → s
     let up_bilinear = |(lo, hi): Span, s: usize| (lo - 2 * px(s), hi + px(s));
     let mut enc: Vec<Span> = Vec::new();
-    for s in 0..=l {
-        let x = if s == 0 { (0, 0) } else { pool(enc[s - 1], s - 1) };
-        enc.push(conv(conv(x, s), s));
+    for (i, &(_, cin, _)) in layer_shapes(a).iter().enumerate().take(2 * (l + 1)) {
+        let s = i / 2;
+        let x = match (i % 2, s) {
+            (1, _) => enc.pop().expect("the scale's first layer"),
+            (_, 0) => (0, 0),
+            _ => pool(enc[s - 1], s - 1),
+        };
+        enc.push(conv(x, s, cin));
     }
     let mut feats = enc.clone();
     for s in (1..l).rev() {
-        feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s);
+        feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s, width(a, s + 1) + width(a, s));
     }
     // Clamped to the 3×3 neighbourhood; spreading the excess reaches one pixel further.
     let reach = if a.clamp == Clamp::Spread { 2 } else { 1 };
@@ -140,7 +186,7 @@ pub fn receptive_radius(a: &Architecture) -> usize {
         });
     }
     let (lo, hi) = out.expect("at least one level");
-    (lo.unsigned_abs().max(hi.unsigned_abs()) as usize).next_multiple_of(a.alignment())
+    lo.unsigned_abs().max(hi.unsigned_abs()) as usize
 }
 
 /// The noisy colour at scales `0..levels`, each a 2×2 box average of the one above, with
@@ -378,14 +424,34 @@ mod tests {
     use super::*;
 
     #[test]
-    fn winograd_runs_where_every_regions_columns_start_on_an_even_column() {
+    fn winograd_tiles_start_where_every_regions_columns_start() {
         // Regions start on multiples of the alignment at full resolution; at scale s on
-        // multiples of alignment >> s, which must be even.
+        // multiples of alignment >> s, which the filter's tile must divide.
+        for a in [Architecture::ladder(crate::model::Quality::Balanced), Architecture::multiscale()] {
+            let filters: Vec<Option<Winograd>> = (0..=a.layers).map(|s| winograd_scale(&a, s)).collect();
+            for (s, f) in filters.iter().enumerate() {
+                assert!(f.is_none_or(|f| (a.alignment() >> s).is_multiple_of(f.tile())), "scale {s}: {f:?}");
+            }
+            assert_eq!(filters[..2], [Some(Winograd::F4); 2], "F(4, 3) at the finest scales");
+            assert_eq!(filters[a.layers], None, "the coarsest scale goes directly");
+        }
+    }
+
+    #[test]
+    fn the_column_radius_adds_f43s_extra_columns() {
+        // The ladder's F(4, 3) layers: E_0's two (27 and 16 inputs), E_1's two and D_1,
+        // on the deepest path, each reading two more pixels of its scale each side:
+        // 2·1 + 2·1 + 2·2 + 2·2 + 2·2 = 16 px.
         let a = Architecture::ladder(crate::model::Quality::Balanced);
-        let on: Vec<bool> = (0..=a.layers).map(|s| winograd_scale(&a, s)).collect();
-        let expected: Vec<bool> = (0..=a.layers).map(|s| (a.alignment() >> s) >= 2).collect();
-        assert_eq!(on, expected);
-        assert_eq!(on.iter().filter(|&&w| !w).count(), 1, "the coarsest scale goes directly");
+        assert_eq!(radius(&a, |s, cin| winograd_extra(&a, s, cin)) - radius(&a, |_, _| 0), 16);
+        assert_eq!(column_radius(&a) % a.alignment(), 0);
+        assert!(column_radius(&a) >= receptive_radius(&a));
+        // F(4, 3) on every scale it could take would cost 88.
+        let every = |s: usize, cin: usize| {
+            let f4 = (a.alignment() >> s).is_multiple_of(4) && Winograd::F4.takes(cin, 3);
+            if f4 { 2 } else { 0 }
+        };
+        assert_eq!(radius(&a, every) - radius(&a, |_, _| 0), 88);
     }
 
     #[test]

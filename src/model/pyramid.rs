@@ -42,8 +42,7 @@ impl Weights {
             let (_, cin, k, _) = wt.dims4()?;
             let (wt, b) = (wt.flatten_all()?.to_vec1::<f32>()?, b.to_vec1::<f32>()?);
             let layer = ConvLayer::new(&wt, &b, cin, k);
-            let winograd = multiscale::winograd_scale(arch, multiscale::layer_scale(arch, i));
-            layers.push(if winograd { layer.with_winograd() } else { layer });
+            layers.push(multiscale::inference_layer(arch, multiscale::layer_scale(arch, i), layer));
             last = Some((wt, b, cin));
         }
         let (wt, b, cin) = last.ok_or_else(|| ModelError::Format {

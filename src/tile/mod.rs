@@ -30,24 +30,43 @@ pub fn plan(width: usize, height: usize, tw: usize, th: usize) -> Vec<Tile> {
 }
 
 /// How far the region a tile is evaluated on reaches beyond the tile: `radius` pixels
-/// each side, but at most `border` beyond the frame's edges, its length rounded up to
-/// `align` (the network's pooling grid).
+/// above and below, `column_radius` left and right, but at most `border` beyond the
+/// frame's edges, its length rounded up to `align` (the network's pooling grid).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Reach {
-    /// Context each side inside the frame.
+    /// Context each side across rows inside the frame.
     pub radius: usize,
-    /// Context each side beyond the frame's edges (at most `radius`).
+    /// Context each side across columns inside the frame: `radius`, or more where the
+    /// network's rounding reads further along rows
+    /// ([`crate::model::multiscale::column_radius`]).
+    pub column_radius: usize,
+    /// Context each side beyond the frame's edges (at most either radius).
     pub border: usize,
     /// Region lengths are multiples of this.
     pub align: usize,
 }
 
 impl Reach {
-    /// The region `(start, length, offset of the span in it)` around the span
-    /// `[at, at + len)` of an axis `total` pixels long. Each end depends only on where the
-    /// span lies against the axis's ends, so a tile sees what the whole frame would.
-    pub fn region(&self, at: usize, len: usize, total: usize) -> (isize, usize, usize) {
-        let (r, border) = (self.radius as isize, self.border.min(self.radius) as isize);
+    /// The same context each way.
+    pub fn square(radius: usize, border: usize, align: usize) -> Reach {
+        Reach { radius, column_radius: radius, border, align }
+    }
+
+    /// The region `(start, length, offset of the span in it)` of rows around the rows
+    /// `[at, at + len)` of a frame `total` rows high. Each end depends only on where the
+    /// span lies against the frame's edges, so a tile sees what the whole frame would.
+    pub fn rows(&self, at: usize, len: usize, total: usize) -> (isize, usize, usize) {
+        self.region(self.radius, at, len, total)
+    }
+
+    /// [`Reach::rows`] across columns: around the columns `[at, at + len)` of a frame
+    /// `total` wide.
+    pub fn columns(&self, at: usize, len: usize, total: usize) -> (isize, usize, usize) {
+        self.region(self.column_radius, at, len, total)
+    }
+
+    fn region(&self, radius: usize, at: usize, len: usize, total: usize) -> (isize, usize, usize) {
+        let (r, border) = (radius as isize, self.border.min(radius) as isize);
         let start = (at as isize - r).max(-border);
         let end = (at as isize + len as isize + r).min(total as isize + border);
         (start, ((end - start) as usize).next_multiple_of(self.align.max(1)), (at as isize - start) as usize)
@@ -73,14 +92,18 @@ impl Axis {
     }
 
     /// For each tile length (multiples of `step`): (length, summed and largest region
-    /// length over the tiles).
-    fn costs(&self, reach: &Reach, step: usize) -> Vec<(usize, usize, usize)> {
+    /// length over the tiles), with `region` one of [`Reach`]'s.
+    fn costs(
+        &self,
+        region: impl Fn(usize, usize, usize) -> (isize, usize, usize),
+        step: usize,
+    ) -> Vec<(usize, usize, usize)> {
         (1..=self.len.max(1).div_ceil(step))
             .map(|k| {
                 let t = k * step;
                 let (sum, max) = (0..self.len.max(1).div_ceil(t)).fold((0, 0), |(sum, max), i| {
                     let len = t.min(self.len.saturating_sub(i * t)).max(1);
-                    let (_, r, _) = reach.region(self.start + i * t, len, self.total);
+                    let (_, r, _) = region(self.start + i * t, len, self.total);
                     (sum + r, max.max(r))
                 });
                 (t, sum, max)
@@ -104,7 +127,7 @@ pub fn size_for_regions(
     budget: usize,
 ) -> (usize, usize) {
     let step = step.max(1);
-    let (cx, cy) = (x.costs(reach, step), y.costs(reach, step));
+    let (cx, cy) = (x.costs(|a, l, t| reach.columns(a, l, t), step), y.costs(|a, l, t| reach.rows(a, l, t), step));
     let mut best: Option<((usize, usize), (usize, usize))> = None;
     for &(tw, sw, mw) in &cx {
         for &(th, sh, mh) in &cy {
@@ -142,42 +165,46 @@ mod tests {
 
     #[test]
     fn regions_stop_at_the_border_radius_and_sit_on_the_grid() {
-        let reach = Reach { radius: 192, border: 64, align: 32 };
-        // The whole axis: 64 px beyond each end, rounded up to the grid.
-        assert_eq!(reach.region(0, 720, 720), (-64, 864, 64));
+        let reach = Reach { radius: 192, column_radius: 224, border: 64, align: 32 };
+        // The whole axis: 64 px beyond each end, rounded up to the grid, either way.
+        assert_eq!(reach.rows(0, 720, 720), (-64, 864, 64));
+        assert_eq!(reach.columns(0, 720, 720), (-64, 864, 64));
         // An inner tile gets the full radius; one at the end stops where the whole axis's does.
-        assert_eq!(reach.region(320, 64, 720), (128, 448, 192));
-        let (start, len, _) = reach.region(640, 80, 720);
+        assert_eq!(reach.rows(320, 64, 720), (128, 448, 192));
+        assert_eq!(reach.columns(320, 64, 720), (96, 512, 224));
+        let (start, len, _) = reach.rows(640, 80, 720);
         assert_eq!((start, start + len as isize), (448, -64 + 864));
         // Inside a band with context rows (start 200 of 900): no border cut applies.
-        assert_eq!(reach.region(200, 100, 900), (8, 512, 192));
+        assert_eq!(reach.rows(200, 100, 900), (8, 512, 192));
     }
 
     #[test]
     fn wide_reach_prefers_whole_rows_and_the_whole_frame() {
-        let reach = Reach { radius: 192, border: 64, align: 32 };
+        let reach = Reach { radius: 192, column_radius: 208, border: 64, align: 32 };
         let bytes = |rw: usize, rh: usize, _: usize, _: usize| 536 * rw * rh;
         let (x, y) = (Axis::whole(1280), Axis::whole(720));
         // Enough memory: one tile.
         assert_eq!(size_for_regions(x, y, &reach, 32, bytes, 1 << 30), (1280, 736));
         // Not enough for the whole frame: fewer region pixels than any square tiling.
         let (tw, th) = size_for_regions(x, y, &reach, 32, bytes, 512 << 20);
-        let sum = |a: Axis, t: usize| -> usize {
-            (0..a.len.div_ceil(t)).map(|i| reach.region(i * t, t.min(a.len - i * t), a.total).1).sum()
+        let sum = |a: Axis, t: usize, region: &dyn Fn(usize, usize, usize) -> (isize, usize, usize)| -> usize {
+            (0..a.len.div_ceil(t)).map(|i| region(i * t, t.min(a.len - i * t), a.total).1).sum()
         };
-        let area = |tw: usize, th: usize| sum(x, tw) * sum(y, th);
+        let area = |tw: usize, th: usize| {
+            sum(x, tw, &|a, l, t| reach.columns(a, l, t)) * sum(y, th, &|a, l, t| reach.rows(a, l, t))
+        };
         let plan = plan(1280, 720, tw, th);
         assert!(plan.len() > 1);
         for t in &plan {
-            let (_, rw, _) = reach.region(t.x, t.w, 1280);
-            let (_, rh, _) = reach.region(t.y, t.h, 720);
+            let (_, rw, _) = reach.columns(t.x, t.w, 1280);
+            let (_, rh, _) = reach.rows(t.y, t.h, 720);
             assert!(bytes(rw, rh, t.w, t.h) <= 512 << 20, "{t:?}");
         }
         for side in (32..=1280).step_by(32) {
             let fits = (0..1280usize.div_ceil(side)).all(|i| {
                 (0..720usize.div_ceil(side)).all(|j| {
-                    let (_, rw, _) = reach.region(i * side, side.min(1280 - i * side), 1280);
-                    let (_, rh, _) = reach.region(j * side, side.min(720 - j * side), 720);
+                    let (_, rw, _) = reach.columns(i * side, side.min(1280 - i * side), 1280);
+                    let (_, rh, _) = reach.rows(j * side, side.min(720 - j * side), 720);
                     bytes(rw, rh, side, side) <= 512 << 20
                 })
             });

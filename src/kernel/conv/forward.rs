@@ -560,6 +560,7 @@ unsafe fn block_avx2<const M: usize, const NV: usize, const MASKED: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernel::conv::Winograd;
     use crate::rng::SplitMix64;
     use candle_core::{Device, Tensor};
 
@@ -575,7 +576,8 @@ mod tests {
     #[test]
     fn matches_candle_conv2d() {
         // Widths around the 8- and 32-pixel blocks, channels around the 8-channel panels;
-        // even widths of 32 channels and more take the Winograd path.
+        // 3×3 layers take F(2, 3) on even widths from 32 channels, F(4, 3) on widths of
+        // multiples of 4 from 16.
         for (cin, cout, k, w, h) in [
             (3, 5, 3, 37, 6),
             (32, 9, 3, 38, 5),
@@ -584,16 +586,19 @@ mod tests {
             (27, 9, 3, 20, 5),
             (2, 3, 3, 5, 4),
             (16, 17, 3, 70, 3),
+            (16, 9, 3, 36, 5),
             (5, 8, 1, 33, 2),
         ] {
-            let x = SplitMix64(1).centred(cin * w * h);
-            let wt = SplitMix64(2).centred(cout * cin * k * k);
-            let b = SplitMix64(3).centred(cout);
-            let ours =
-                conv(&Planes::from_vec(cin, w, h, x.clone()), &ConvLayer::new(&wt, &b, cin, k).with_winograd(), true);
-            let theirs = candle_conv(&x, &wt, &b, cin, k, w, h);
-            for (i, (a, b)) in ours.data.iter().zip(&theirs).enumerate() {
-                assert!((a - b.max(0.0)).abs() < 1e-5, "{cin}→{cout} k{k} {w}×{h} at {i}: {a} vs {b}");
+            for filter in [Winograd::F2, Winograd::F4] {
+                let x = SplitMix64(1).centred(cin * w * h);
+                let wt = SplitMix64(2).centred(cout * cin * k * k);
+                let b = SplitMix64(3).centred(cout);
+                let layer = ConvLayer::new(&wt, &b, cin, k).with_winograd(filter);
+                let ours = conv(&Planes::from_vec(cin, w, h, x.clone()), &layer, true);
+                let theirs = candle_conv(&x, &wt, &b, cin, k, w, h);
+                for (i, (a, b)) in ours.data.iter().zip(&theirs).enumerate() {
+                    assert!((a - b.max(0.0)).abs() < 1e-5, "{filter:?} {cin}→{cout} k{k} {w}×{h} at {i}: {a} vs {b}");
+                }
             }
         }
     }
@@ -611,23 +616,25 @@ mod tests {
             (32, 8, 3, 64, 40),
         ] {
             let input = Planes::from_vec(cin, w, h, SplitMix64(8).centred(cin * w * h));
-            let layer =
-                ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k)
-                    .with_winograd();
-            let whole = conv(&input, &layer, true);
-            for out in [0..h, 0..1, 3..h, 1..h - 1, h / 2..h / 2 + 1, 2..2] {
-                let rows = conv_rows(&layer, true, (w, h), out.clone(), |c, y, dst| {
-                    dst.copy_from_slice(&input.data[(c * h + y) * w..][..w]);
-                });
-                assert_eq!((rows.c, rows.w, rows.h), (cout, w, out.len()));
-                let n = out.len();
-                for c in 0..cout {
-                    for (j, y) in out.clone().enumerate() {
-                        let (got, want) = (&rows.data[(c * n + j) * w..][..w], &whole.data[(c * h + y) * w..][..w]);
-                        assert!(
-                            got.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()),
-                            "{cin}→{cout} k{k} {w}×{h}, rows {out:?}: channel {c}, row {y}"
-                        );
+            for filter in [Winograd::F2, Winograd::F4] {
+                let layer =
+                    ConvLayer::new(&SplitMix64(9).centred(cout * cin * k * k), &SplitMix64(10).centred(cout), cin, k)
+                        .with_winograd(filter);
+                let whole = conv(&input, &layer, true);
+                for out in [0..h, 0..1, 3..h, 1..h - 1, h / 2..h / 2 + 1, 2..2] {
+                    let rows = conv_rows(&layer, true, (w, h), out.clone(), |c, y, dst| {
+                        dst.copy_from_slice(&input.data[(c * h + y) * w..][..w]);
+                    });
+                    assert_eq!((rows.c, rows.w, rows.h), (cout, w, out.len()));
+                    let n = out.len();
+                    for c in 0..cout {
+                        for (j, y) in out.clone().enumerate() {
+                            let (got, want) = (&rows.data[(c * n + j) * w..][..w], &whole.data[(c * h + y) * w..][..w]);
+                            assert!(
+                                got.iter().zip(want).all(|(a, b)| a.to_bits() == b.to_bits()),
+                                "{filter:?} {cin}→{cout} k{k} {w}×{h}, rows {out:?}: channel {c}, row {y}"
+                            );
+                        }
                     }
                 }
             }
@@ -643,16 +650,18 @@ mod tests {
             let coarse = Planes::from_vec(cc, w / 2, h / 2, SplitMix64(4).centred(cc * w * h / 4));
             let skip = Planes::from_vec(cs, w, h, SplitMix64(5).centred(cs * w * h));
             let cin = cc + cs;
-            let layer =
-                ConvLayer::new(&SplitMix64(6).centred(cout * cin * k * k), &SplitMix64(7).centred(cout), cin, k)
-                    .with_winograd();
-            let built = conv(&coarse.up_nearest().concat(&skip), &layer, true);
-            let fused = conv_up_concat(&coarse, &skip, &layer, true);
-            assert_eq!((fused.c, fused.w, fused.h), (cout, w, h));
-            assert!(
-                built.data.iter().zip(&fused.data).all(|(a, b)| a.to_bits() == b.to_bits()),
-                "{cc}+{cs} k{k} {w}×{h}"
-            );
+            for filter in [Winograd::F2, Winograd::F4] {
+                let layer =
+                    ConvLayer::new(&SplitMix64(6).centred(cout * cin * k * k), &SplitMix64(7).centred(cout), cin, k)
+                        .with_winograd(filter);
+                let built = conv(&coarse.up_nearest().concat(&skip), &layer, true);
+                let fused = conv_up_concat(&coarse, &skip, &layer, true);
+                assert_eq!((fused.c, fused.w, fused.h), (cout, w, h));
+                assert!(
+                    built.data.iter().zip(&fused.data).all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{filter:?} {cc}+{cs} k{k} {w}×{h}"
+                );
+            }
         }
     }
 
@@ -661,9 +670,10 @@ mod tests {
         // More input channels than one chunk, more rows than one band, a ragged last
         // block; widths that take the row-wise (45, 21) and the flat (24, 12) AVX-512 paths,
         // and end AVX2's 16-pixel groups with one or two segments, masked or not; and the
-        // Winograd path (32 channels and more, even widths), whose flat pairs end a
-        // segment of 16 or AVX2's runs of 8 anywhere, or fill them.
-        for (cin, cout, k, w, h) in [
+        // Winograd paths (F(2, 3) from 32 channels on even widths, F(4, 3) from 16 on
+        // multiples of 4), whose flat tiles end a segment of 16 or AVX2's runs of 8
+        // anywhere, or fill them.
+        let shapes = [
             (20, 11, 3, 45, 11),
             (20, 11, 3, 24, 11),
             (7, 9, 3, 12, 5),
@@ -672,12 +682,15 @@ mod tests {
             (32, 11, 3, 22, 7),
             (36, 9, 3, 64, 5),
             (33, 4, 3, 6, 3),
-        ] {
+            (16, 7, 3, 12, 9),
+            (24, 5, 3, 4, 3),
+        ];
+        for ((cin, cout, k, w, h), filter) in shapes.into_iter().flat_map(|s| [(s, Winograd::F2), (s, Winograd::F4)]) {
             let r = (k - 1) / 2;
             let input = Planes::from_vec(cin, w, h, SplitMix64(7).centred(cin * w * h));
             let layer =
                 ConvLayer::new(&SplitMix64(8).centred(cout * cin * k * k), &SplitMix64(9).centred(cout), cin, k)
-                    .with_winograd();
+                    .with_winograd(filter);
             let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             let run = |isa: Isa| {
                 let mut pad = Vec::new();
@@ -700,12 +713,12 @@ mod tests {
                 bits(&out.data)
             };
             let scalar = run(Isa::Scalar);
-            assert_eq!(run(Isa::detect()), scalar, "{w}×{h}");
+            assert_eq!(run(Isa::detect()), scalar, "{filter:?} {w}×{h}");
             // The banded, parallel path of `conv` too.
-            assert_eq!(bits(&conv(&input, &layer, false).data), scalar, "{w}×{h}");
+            assert_eq!(bits(&conv(&input, &layer, false).data), scalar, "{filter:?} {w}×{h}");
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-                assert_eq!(run(Isa::Avx2), scalar, "{w}×{h}");
+                assert_eq!(run(Isa::Avx2), scalar, "{filter:?} {w}×{h}");
             }
         }
     }
@@ -713,19 +726,21 @@ mod tests {
     #[test]
     fn a_pixel_does_not_depend_on_where_the_plane_ends() {
         // The same 40×4 content seen whole and as its left 24 columns: identical bits,
-        // directly and by Winograd (32 channels).
-        for (cin, cout) in [(5, 6), (32, 6)] {
+        // directly and by Winograd (32 channels), except where an output's window (and,
+        // by Winograd, the columns beyond it that its rounding reads) sees the padding.
+        for ((cin, cout), filter) in [((5, 6), Winograd::F2), ((32, 6), Winograd::F2), ((32, 6), Winograd::F4)] {
             let x = SplitMix64(4).centred(cin * 40 * 4);
             let layer = ConvLayer::new(&SplitMix64(5).centred(cout * cin * 9), &SplitMix64(6).centred(cout), cin, 3)
-                .with_winograd();
+                .with_winograd(filter);
             let whole = conv(&Planes::from_vec(cin, 40, 4, x.clone()), &layer, false);
             let left: Vec<f32> = x.chunks(40).flat_map(|r| r[..24].to_vec()).collect();
             let part = conv(&Planes::from_vec(cin, 24, 4, left), &layer, false);
+            let reads = 1 + if filter.takes(cin, 3) { filter.extra_columns() } else { 0 };
             for c in 0..cout {
                 for y in 0..4 {
-                    // Column 23 saw zero padding in the part; the rest must agree exactly.
-                    for x in 0..23 {
-                        assert_eq!(part.plane(c)[y * 24 + x].to_bits(), whole.plane(c)[y * 40 + x].to_bits(), "{cin}");
+                    for x in 0..24 - reads {
+                        let (p, w) = (part.plane(c)[y * 24 + x], whole.plane(c)[y * 40 + x]);
+                        assert_eq!(p.to_bits(), w.to_bits(), "{filter:?} {cin} at {x}");
                     }
                 }
             }

@@ -11,10 +11,11 @@
 //! output value starts at its bias and adds `input·weight` with one fused multiply-add
 //! per term, in the order (input channel, row, column), wherever it lies in the plane and
 //! whichever path runs, so tiles and bands equal the whole frame bit for bit. Layers
-//! packed [`ConvLayer::with_winograd`] (3×3, 32 input channels or more) go by Winograd's
-//! F(2, 3) along rows instead on even-width planes (`winograd`: 6 multiply-adds per
-//! channel pair and pixel instead of 9), with one order of operations on every path too
-//! and a value depending only on its pair of columns and its 3×3 window's inputs.
+//! packed [`ConvLayer::with_winograd`] go by Winograd's F(2, 3) or F(4, 3) along rows
+//! instead ([`Winograd`]: 6 or 4.5 multiply-adds per channel pair and pixel instead of
+//! 9), with one order of operations on every path too and a value depending only on its
+//! tile of 2 or 4 columns (and, with F(4, 3), on two columns each side beyond its 3×3
+//! window).
 //!
 //! The weight gradient vectorises over pixels (`Taps`), or over output channels for
 //! 3×3 layers wider than 16 (`by_channel`); the input gradient is the forward pass with
@@ -43,6 +44,7 @@ mod winograd;
 
 pub use forward::{conv, conv_batch, conv_rows, conv_up_concat};
 pub use weight_gradient::weight_gradient;
+pub use winograd::Winograd;
 
 /// Output channels per packed weight panel (one micro-kernel block).
 pub const MR: usize = 8;
@@ -57,8 +59,8 @@ pub struct ConvLayer {
     packed: Vec<f32>,
     /// `ceil(cout / MR)·MR` biases, zero-filled.
     bias: Vec<f32>,
-    /// The panels of `winograd::pack` ([`ConvLayer::with_winograd`]), or empty.
-    winograd: Vec<f32>,
+    /// The panels of `winograd::pack` ([`ConvLayer::with_winograd`]).
+    winograd: Option<winograd::Packed>,
 }
 
 impl ConvLayer {
@@ -78,25 +80,26 @@ impl ConvLayer {
         }
         let mut padded_bias = bias.to_vec();
         padded_bias.resize(blocks * MR, 0.0);
-        ConvLayer { cout, cin, k, packed, bias: padded_bias, winograd: Vec::new() }
+        ConvLayer { cout, cin, k, packed, bias: padded_bias, winograd: None }
     }
 
-    /// This layer with Winograd's F(2, 3) panels packed too, where it is 3×3 with at least
-    /// `winograd::MIN_CHANNELS` inputs (else unchanged): planes of even width then take
-    /// that path, where a value depends on its pair of columns. Use it only where every
-    /// plane the layer is given starts on an even column of the frame (the multi-scale
-    /// network's scales whose regions do,
+    /// This layer with panels for `filter` packed too, where it takes it
+    /// ([`Winograd::takes`]; else unchanged): planes whose width is a multiple of the
+    /// filter's tile then take that path, where a value depends on its tile of columns
+    /// (and with F(4, 3) on two more columns each side). Use it only where every plane the
+    /// layer is given starts on a multiple of the tile in the frame's columns (the
+    /// multi-scale network's scales whose regions do,
     /// [`crate::model::multiscale::winograd_scale`]), so tiles still equal the whole frame
     /// bit for bit.
-    pub fn with_winograd(mut self) -> ConvLayer {
-        if self.k == 3 && self.cin >= winograd::MIN_CHANNELS {
+    pub fn with_winograd(mut self, filter: Winograd) -> ConvLayer {
+        if filter.takes(self.cin, self.k) {
             // The weights back from the direct panels, so callers need not keep them.
             let kk = self.cin * 9;
             let weight: Vec<f32> = (0..self.cout)
                 .flat_map(|co| (0..kk).map(move |t| (co, t)))
                 .map(|(co, t)| self.packed[((co / MR) * kk + t) * MR + co % MR])
                 .collect();
-            self.winograd = winograd::pack(&weight, self.cout, self.cin);
+            self.winograd = Some(winograd::pack(filter, &weight, self.cout, self.cin));
         }
         self
     }
