@@ -95,7 +95,7 @@ pub struct DenoiseArgs {
     /// cost (program, libraries, model, OpenEXR's row buffers for each decoding and
     /// encoding thread, thread stacks; 200-450 MB), and the diffuse detail step's working
     /// rows (chunks of about 2^18 pixels: 50-80 MB). Measured peak RSS with the default:
-    /// 1920x1080 with 41 channels 769-819 MiB, 3840x2160 975-992 MiB (from run to run).
+    /// 1920x1080 with 41 channels 769-821 MiB, 3840x2160 975-992 MiB (from run to run).
     #[arg(long, default_value_t = 512, value_name = "MB")]
     pub max_memory: usize,
     /// No progress bar or notes, errors only.
