@@ -10,8 +10,7 @@
 //! tile's outputs are `bias + Aᵀm`. Every path (AVX-512, AVX2, scalar) does exactly these
 //! operations in one order, written once per filter for one lane's values of any path
 //! (`Filter::tile`, `Filter::outputs` over `Lane`), so all give the same bits, and a
-//! pixel's value depends
-//! only on its tile, never on the rows or tasks around it.
+//! pixel's value depends only on its tile, never on the rows or tasks around it.
 //!
 //! F(2, 3)'s outputs read only their own 3×3 window's inputs (`m3` never enters the first
 //! of a pair, `m0` never the second), so a value depends on exactly what the direct sum
@@ -50,11 +49,12 @@ impl Winograd {
         }
     }
 
-    /// Whether a `k × k` layer of `cin` input channels takes this path. The terms are
-    /// `4/2` (F(2, 3)) or `6/4` (F(4, 3)) times the input's floats, and with fewer input
-    /// channels than these the traffic outweighs the multiply-adds saved (F(2, 3) on
-    /// 16→16 and 27→16 at 1280×720 ran 10–15 % slower, 32→32 and up 7–40 % faster;
-    /// F(4, 3) gains from 16; `fast`'s 8-channel layers go directly; BENCHMARKS.md).
+    /// Whether a `k × k` layer of `cin` input channels takes this path: a 3×3 one of 32
+    /// input channels or more for F(2, 3), 16 or more for F(4, 3). The terms are `4/2`
+    /// (F(2, 3)) or `6/4` (F(4, 3)) times the input's floats, and with fewer channels the
+    /// traffic outweighs the multiply-adds saved (F(2, 3) on 16→16 and 27→16 at 1280×720
+    /// ran 10–15 % slower, 32→32 and up 7–40 % faster; F(4, 3) gains from 16; `fast`'s
+    /// 8-channel layers go directly; BENCHMARKS.md).
     pub fn takes(self, cin: usize, k: usize) -> bool {
         let min = match self {
             Winograd::F2 => 32,
