@@ -91,6 +91,7 @@ pub(super) fn pack(filter: Winograd, weight: &[f32], cout: usize, cin: usize) ->
     Packed { filter, panels }
 }
 
+/// [`pack`] for filter `F` (`N` outputs and `Q` terms per tile).
 fn pack_with<F: Filter<N, Q>, const N: usize, const Q: usize>(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
     let blocks = cout.div_ceil(MR);
     let mut packed = vec![0f32; blocks * Q * cin * 3 * MR];
