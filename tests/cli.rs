@@ -1,6 +1,7 @@
 //! The `kpcn` binary: exit statuses and messages a pipeline can rely on.
 
 use crate::util::{cycles_dev, garbage, mismatched_parts, native_frame, write};
+use kpcn::io::FrameBuffers;
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -252,7 +253,7 @@ fn auto_picks_the_spatial_model_for_files_without_variances() {
     let full = native_frame(48, 32, 5, &[]);
     let with = write(&full, dir.path(), "with.exr");
     // The same means, without variances and half buffers.
-    let mut means = kpcn::io::FrameBuffers::new(48, 32);
+    let mut means = FrameBuffers::new(48, 32);
     for c in crate::util::native_channels() {
         if !c.contains("Variance") && !c.split('.').next().is_some_and(|l| l.ends_with('A')) {
             means.insert(&c, kpcn::io::SampleFormat::Float, full.channel(&c).unwrap().to_vec()).unwrap();
@@ -260,7 +261,7 @@ fn auto_picks_the_spatial_model_for_files_without_variances() {
     }
     let without = write(&means, dir.path(), "without.exr");
     let bits = |p: &Path| {
-        let fb = kpcn::io::FrameBuffers::read(p).unwrap();
+        let fb = FrameBuffers::read(p).unwrap();
         ["R", "G", "B"]
             .map(|c| fb.channel(&format!("denoised.{c}")).unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>())
     };
@@ -292,7 +293,7 @@ fn quality_names_a_rung_of_the_ladder_and_refuses_a_model_beside_it() {
     let dir = tempfile::tempdir().unwrap();
     let input = write(&native_frame(40, 24, 6, &[]), dir.path(), "in.exr");
     let bits = |p: &Path| {
-        let fb = kpcn::io::FrameBuffers::read(p).unwrap();
+        let fb = FrameBuffers::read(p).unwrap();
         fb.channel("denoised.G").unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     };
     let mut seen = Vec::new();
@@ -411,4 +412,114 @@ fn no_help_text_shows_rustdoc_markup() {
         todo.extend(commands(&page).into_iter().map(|c| [path.clone(), vec![c]].concat()));
     }
     assert!(seen >= 8, "only {seen} help pages");
+}
+
+#[test]
+fn denoise_keeps_every_input_channel_and_adds_the_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut inputs = vec![write(&native_frame(24, 16, 1, &[]), dir.path(), "in.exr")];
+    if let Some(dev) = cycles_dev() {
+        inputs.push(dev.join("interior-00004spp.exr"));
+    }
+    for input in inputs {
+        let out = dir.path().join("out.exr");
+        let r = kpcn(&[
+            "denoise",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--aovs",
+            "-q",
+            "--model",
+            "small",
+            "--allow-untrained",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let a = FrameBuffers::read(&input).unwrap();
+        let b = FrameBuffers::read(&out).unwrap();
+        for p in a.planes() {
+            assert_eq!(b.channel(&p.name), Some(p.data.as_slice()), "{} kept", p.name);
+        }
+        assert_eq!(b.planes().len(), a.planes().len() + 9);
+        assert!(b.channel("denoised_specular.G").is_some());
+        assert!(b.attribute("kpcn:model").unwrap().contains("untrained"));
+    }
+}
+
+#[test]
+fn denoise_runs_a_sequence_and_reports_bad_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in 1..=5 {
+        write(&native_frame(16, 12, f, &[]), dir.path(), &format!("render.{f:04}.exr"));
+    }
+    let pattern = dir.path().join("render.####.exr");
+    let out = dir.path().join("den.%04d.exr");
+    let (i, o) = (pattern.to_str().unwrap(), out.to_str().unwrap());
+    let dry = kpcn(&["denoise", i, "-o", o, "-n"]);
+    assert_eq!(String::from_utf8_lossy(&dry.stdout).lines().count(), 5);
+    assert!(!dir.path().join("den.0001.exr").exists(), "a dry run writes nothing");
+
+    // A budget of twice the default keeps two frames in flight (each within half of it).
+    let r = kpcn(&["denoise", i, "-o", o, "-q", "--max-memory", "1024"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // Frames in flight together give what one frame alone does.
+    for f in 1..=5 {
+        let single = dir.path().join("single.exr");
+        let input = dir.path().join(format!("render.{f:04}.exr"));
+        let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", single.to_str().unwrap(), "-q"]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let (a, b) = (
+            FrameBuffers::read(&single).unwrap(),
+            FrameBuffers::read(&dir.path().join(format!("den.{f:04}.exr"))).unwrap(),
+        );
+        for c in ["denoised.R", "denoised.G", "denoised.B"] {
+            let bits = |fb: &FrameBuffers| fb.channel(c).unwrap().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert!(bits(&a) == bits(&b), "frame {f}: {c} differs from the frame denoised alone");
+        }
+    }
+    // Frame 3 corrupt: fail fast stops there; --skip-bad-frames goes on and reports it.
+    std::fs::write(dir.path().join("render.0003.exr"), b"garbage").unwrap();
+    let o2 = dir.path().join("two.@@@@.exr");
+    let r = kpcn(&["denoise", i, "-o", o2.to_str().unwrap(), "--frames", "1-5", "-q", "--max-memory", "1024"]);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("render.0003.exr"));
+    assert!(!dir.path().join("two.0004.exr").exists(), "fail fast");
+    let r = kpcn(&["denoise", i, "-o", o2.to_str().unwrap(), "--frames", "1-5x2", "--skip-bad-frames", "-q"]);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("1 of 3 frames failed"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert!(dir.path().join("two.0005.exr").is_file());
+}
+
+#[test]
+fn denoise_warns_about_untrained_models_and_estimated_variance() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = write(&native_frame(8, 8, 2, &["diffuseVariance", "diffuseA"]), dir.path(), "in.exr");
+    let out = dir.path().join("o.exr");
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "untrained presets need --allow-untrained: {err}");
+    assert!(err.contains("--allow-untrained") && !out.exists(), "{err}");
+    // Not hidden by -q either.
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small", "-q"]);
+    assert_eq!(r.status.code(), Some(2));
+    let r = kpcn(&[
+        "denoise",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--model",
+        "small",
+        "--allow-untrained",
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{err}");
+    assert!(err.contains("UNTRAINED"), "{err}");
+    // The shipped flat model has a name of its own.
+    let r = kpcn(&["denoise", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--model", "small-flat", "-q"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(err.contains("diffuse (spatially"), "{err}");
 }
