@@ -154,19 +154,17 @@ fn radius(a: &Architecture, extra: impl Fn(usize, usize) -> i64) -> usize {
     let pool = |(lo, hi): Span, s: usize| (lo, hi + px(s)); // scale s → s + 1
     let up_nearest = |(lo, hi): Span, s: usize| (lo - px(s), hi); // scale s + 1 → s
     let up_bilinear = |(lo, hi): Span, s: usize| (lo - 2 * px(s), hi + px(s));
+    // Input channels of each layer, in `layer_shapes`' order.
+    let cin: Vec<usize> = layer_shapes(a).iter().map(|&(_, n, _)| n).collect();
+    let dec = layer_offsets(a).0;
     let mut enc: Vec<Span> = Vec::new();
-    for (i, &(_, cin, _)) in layer_shapes(a).iter().enumerate().take(2 * (l + 1)) {
-        let s = i / 2;
-        let x = match (i % 2, s) {
-            (1, _) => enc.pop().expect("the scale's first layer"),
-            (_, 0) => (0, 0),
-            _ => pool(enc[s - 1], s - 1),
-        };
-        enc.push(conv(x, s, cin));
+    for s in 0..=l {
+        let x = if s == 0 { (0, 0) } else { pool(enc[s - 1], s - 1) };
+        enc.push(conv(conv(x, s, cin[2 * s]), s, cin[2 * s + 1]));
     }
     let mut feats = enc.clone();
-    for s in (1..l).rev() {
-        feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s, width(a, s + 1) + width(a, s));
+    for (j, s) in (1..l).rev().enumerate() {
+        feats[s] = conv(union(up_nearest(feats[s + 1], s), enc[s]), s, cin[dec + j]);
     }
     // Clamped to the 3×3 neighbourhood; spreading the excess reaches one pixel further.
     let reach = if a.clamp == Clamp::Spread { 2 } else { 1 };
