@@ -12,6 +12,9 @@ extern "C" fn on_signal(sig: libc::c_int) {
 }
 
 /// Installs the handlers and a watcher thread that does the cleanup on an ordinary thread.
+/// Where the thread cannot start (a process at its memory limit from the outset), the
+/// signals keep their default action, ending the process as before; the temporary files
+/// it leaves are removed by the next run (`kpcn::io::atomic`).
 pub fn exit_on_signals() {
     let handler = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
     // SAFETY: the handler only stores to an atomic.
@@ -19,7 +22,9 @@ pub fn exit_on_signals() {
         libc::signal(libc::SIGINT, handler);
         libc::signal(libc::SIGTERM, handler);
     }
-    std::thread::spawn(|| {
+    // A small stack: the watcher only polls, and under an address-space limit a default
+    // 2 MiB stack can be what does not fit.
+    let watcher = std::thread::Builder::new().name("kpcn-signals".into()).stack_size(64 << 10).spawn(|| {
         loop {
             let sig = SIGNAL.load(Ordering::SeqCst);
             if sig != 0 {
@@ -34,4 +39,11 @@ pub fn exit_on_signals() {
             std::thread::sleep(Duration::from_millis(20));
         }
     });
+    if watcher.is_err() {
+        // SAFETY: restores the default action; no handler of ours runs after this.
+        unsafe {
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGTERM, libc::SIG_DFL);
+        }
+    }
 }
