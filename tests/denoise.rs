@@ -29,6 +29,8 @@ fn tiny(kind: Kind, kernel: usize) -> Model {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: Default::default(),
         },
         3,
     )

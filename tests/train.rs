@@ -81,6 +81,8 @@ fn tiny() -> Model {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: Default::default(),
         },
         1,
     )
@@ -510,6 +512,49 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
     }
     let m = t.model.snapshot("linear").unwrap();
     assert_eq!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.specular, linear.arch.specular);
+}
+
+/// A gain added to a model starts at exactly 1 (the model's own outputs, bit for bit)
+/// and trains; the CLI adds it to an --init model, and refuses it for a flat one.
+#[test]
+fn a_gain_starts_at_one_and_trains() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let plain = crate::util::tiny_multiscale(2);
+    let gained = plain.clone().with_gain().unwrap();
+    let frames: Vec<_> = data.train.iter().collect();
+    let fixed = batch(&frames, &vec![(4, 4); frames.len()], 8, &plain.arch, Branch::Diffuse).unwrap();
+    let opts = TrainOptions { patch: 8, lr: 1e-2, ..options(20) };
+    let predict = |t: &Trainer| v(&t.model.predict(Branch::Diffuse, &fixed.input, &fixed.noisy).unwrap());
+    let mut t = Trainer::new(&gained, &data, opts.clone()).unwrap();
+    let bits = |x: Vec<f32>| x.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+    assert!(bits(predict(&Trainer::new(&plain, &data, opts).unwrap())) == bits(predict(&t)));
+    while !t.finished() {
+        t.train_step().unwrap();
+    }
+    let m = t.model.snapshot("gain").unwrap();
+    let (w, _) = m.diffuse.layers.last().unwrap();
+    let gain_row = v(&w.narrow(0, w.dim(0).unwrap() - 1, 1).unwrap());
+    assert!(gain_row.iter().any(|&x| x != 0.0), "the gain's weights did not train");
+    assert!(Model::from_bytes(&m.to_bytes().unwrap(), "mem").unwrap().arch.gain);
+
+    let init = dir.path().join("init.safetensors");
+    plain.save(&init).unwrap();
+    let (d, run) = (dir.path().to_str().unwrap(), dir.path().join("run"));
+    let train = |init: &Path| {
+        let args = ["train", "--data", d, "-o", run.to_str().unwrap(), "--steps", "1", "--holdout", "3"];
+        kpcn(&[&args[..], &["--patch", "16", "-q", "--gain", "--init", init.to_str().unwrap()]].concat())
+    };
+    let out = train(&init);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(Model::load(&run.join("model.safetensors")).unwrap().arch.gain);
+    let flat = dir.path().join("flat.safetensors");
+    Model::xavier(Architecture::small(Kind::Kpcn), 0).unwrap().save(&flat).unwrap();
+    std::fs::remove_dir_all(&run).unwrap();
+    let out = train(&flat);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("a gain is for multi-scale networks"), "{err}");
 }
 
 /// The branch's weights, as bits.

@@ -190,6 +190,12 @@ pub fn describe(m: &Model) {
                 kpcn::model::ScaleBlend::Detail => "detail: fine + α·up(coarse − down(fine)) (Vogels et al. 2018)",
             };
             println!("  scale blend   {blend}");
+            if a.diffuse_input == kpcn::model::DiffuseInput::Log {
+                println!("  diffuse       the network sees ln(1 + d̃); its kernels filter d̃");
+            }
+            if a.gain {
+                println!("  gain          each branch's result times 2σ(g), g from the full-resolution head");
+            }
             let specular = match a.specular {
                 kpcn::model::Specular::Log => "log radiance ln(1 + s), output exp(ŝ) − 1 (biased dark)",
                 kpcn::model::Specular::Linear => "linear radiance (energy-preserving)",

@@ -7,7 +7,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kpcn::eval::plot::write_png;
 use kpcn::features::Branch;
 use kpcn::kernel::ops::Ops;
-use kpcn::model::{Clamp, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
+use kpcn::model::{Clamp, DiffuseInput, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
 use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, LossScale, TrainOptions, Trainer};
 use kpcn::train::{curves, records};
@@ -48,6 +48,19 @@ pub struct TrainArgs {
     /// model. Default: the preset's (lerp) or the --init model's.
     #[arg(long, value_enum, value_name = "lerp|detail")]
     pub blend: Option<ScaleBlend>,
+    /// A multi-scale network's full-resolution head also predicts a per-pixel gain
+    /// `2σ(g)` on each branch's result (between 0 and 2): shading the kernels' averages
+    /// cannot reach. An --init model without one gains it at exactly 1 (zero weights), so
+    /// training starts from that model's outputs. Recorded in the model (`kpcn:gain`).
+    #[arg(long)]
+    pub gain: bool,
+    /// How the diffuse branch's network sees d̃: `linear`, or `log` (`ln(1 + d̃)`, its
+    /// gradients and its variance alike, as the specular branch sees s̃); its kernels
+    /// filter d̃ either way. Recorded in the model. Default: the --init model's, else
+    /// linear. A branch trained on one does not know the other: give it with `--fresh
+    /// diffuse`.
+    #[arg(long, value_enum, value_name = "linear|log")]
+    pub diffuse_input: Option<DiffuseInput>,
     /// What the specular kernels filter: `log` (ln(1 + s), as Bako et al.) or `linear`
     /// radiance (energy-preserving, but harder to learn: BENCHMARKS.md). Default: log, or
     /// the --init model's.
@@ -292,6 +305,12 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         if let Some(b) = args.blend {
             model.arch.blend = b;
         }
+        if args.gain {
+            model = model.with_gain()?;
+        }
+        if let Some(d) = args.diffuse_input {
+            model.arch.diffuse_input = d;
+        }
         if let Some(d) = args.specular {
             model.arch.specular = d;
         }
@@ -401,6 +420,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             (args.permute_channels, ", channels permuted"),
             (args.fireflies, ", fireflies added"),
             (a.exposure == Exposure::Auto, ", auto-exposed"),
+            (a.diffuse_input == DiffuseInput::Log, ", diffuse seen in log"),
+            (a.gain, ", with a gain"),
             (args.fresh == Some(Branch::Diffuse), ", diffuse branch afresh"),
             (args.fresh == Some(Branch::Specular), ", specular branch afresh"),
             (args.only == Some(Branch::Diffuse), ", phase 1 on the diffuse branch alone"),

@@ -456,7 +456,8 @@ impl Denoiser {
         }
         let (rf, rk) = (arch.feature_radius() as isize, arch.kernel_radius() as isize);
         let (iw, ih) = (t.w + 2 * rf as usize, t.h + 2 * rf as usize);
-        let x = f.branch_input(b, t.x as isize - rf, t.y as isize - rf, iw, ih);
+        let mut x = f.branch_input(b, t.x as isize - rf, t.y as isize - rf, iw, ih);
+        arch.prepare_input(b, &mut x);
         let x = Tensor::from_vec(x, (1, INPUT_CHANNELS, ih, iw), &Device::Cpu).map_err(ModelError::from)?;
         let weights = match b {
             Branch::Diffuse => &self.model.diffuse,

@@ -248,7 +248,8 @@ pub(super) fn feed(
     out: &mut [Vec<f32>; 3],
 ) {
     let (x0, rw) = (win.x0, win.rw);
-    let input = f.branch_input(b, x0, y, rw, n);
+    let mut input = f.branch_input(b, x0, y, rw, n);
+    arch.prepare_input(b, &mut input);
     // The colour, and its variance where the clamp reads it (that of s̃ is of the log
     // radiance, so linear specular kernels clamp without it).
     let linear = b == Branch::Specular && arch.specular == Specular::Linear;

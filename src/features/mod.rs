@@ -438,6 +438,33 @@ impl Features {
     }
 }
 
+/// A branch's 27-channel input (CHW, [`Features::branch_input`]) with its colour seen in
+/// log, in place: `c̃` becomes `ln(1 + c̃)`, each of its backward differences `c̃ − c̃'`
+/// becomes `ln(1 + c̃) − ln(1 + c̃')` (the neighbour `c̃'` is `c̃` less the difference), and
+/// its variance `σ² / (1 + m)²` with `m` the mean of `c̃` over RGB (the delta method, as
+/// for `s̃`). Negative values count as 0.
+pub fn log_colour_input(input: &mut [f32]) {
+    let n = input.len() / INPUT_CHANNELS;
+    let (colour, rest) = input.split_at_mut(3 * n);
+    let (gx, rest) = rest.split_at_mut(10 * n);
+    let (gy, variance) = rest.split_at_mut(10 * n);
+    let (r, g, b) = (&colour[..n], &colour[n..2 * n], &colour[2 * n..]);
+    variance[..n].par_iter_mut().enumerate().for_each(|(i, v)| {
+        let mean = r[i].max(0.0) / 3.0 + g[i].max(0.0) / 3.0 + b[i].max(0.0) / 3.0;
+        *v = sanitize(*v / ((1.0 + mean) * (1.0 + mean)));
+    });
+    let ln = |v: f32| v.max(0.0).ln_1p();
+    let planes = colour.par_chunks_mut(n.max(1)).zip(gx.par_chunks_mut(n.max(1))).zip(gy.par_chunks_mut(n.max(1)));
+    planes.for_each(|((c, gx), gy)| {
+        for ((v, x), y) in c.iter_mut().zip(gx).zip(gy) {
+            let l = ln(*v);
+            *x = sanitize(l - ln(v.max(0.0) - *x));
+            *y = sanitize(l - ln(v.max(0.0) - *y));
+            *v = l;
+        }
+    });
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -581,6 +608,32 @@ pub(crate) mod tests {
                     assert_eq!(part[c * 12 + y * 4 + x], plane[(y + 1) * 7 + x + 2], "channel {c}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn the_log_input_is_the_input_of_the_colour_seen_in_log() {
+        // Sparse bright hits among dim values, a region past the frame's edges.
+        let k = inputs(9, 7, |i| if i % 17 == 3 { 40.0 + i as f32 } else { ((i * 7919) % 13) as f32 * 0.05 });
+        let f = Features::new(&k);
+        let mut logged = f.clone();
+        for c in 0..3 {
+            logged.d_tilde[c] = f.d_tilde[c].iter().map(|&v| v.max(0.0).ln_1p()).collect();
+        }
+        for (i, v) in logged.d_variance.iter_mut().enumerate() {
+            let m = 1.0 + (0..3).map(|c| f.d_tilde[c][i]).sum::<f32>() / 3.0;
+            *v /= m * m;
+        }
+        let mut got = f.branch_input(Branch::Diffuse, -2, -1, 12, 9);
+        log_colour_input(&mut got);
+        let want = logged.branch_input(Branch::Diffuse, -2, -1, 12, 9);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert!((g - w).abs() <= 1e-5 * (1.0 + w.abs()), "channel {}, pixel {}: {g} against {w}", i / 108, i % 108);
+        }
+        // Only c̃'s planes change.
+        let plain = f.branch_input(Branch::Diffuse, -2, -1, 12, 9);
+        for c in (6..13).chain(16..23).chain(24..27) {
+            assert_eq!(got[c * 108..][..108], plain[c * 108..][..108], "channel {c}");
         }
     }
 

@@ -427,6 +427,12 @@ pub fn add_blended(fine: &Tensor, coarse: &Tensor, logits: &Tensor) -> Result<Te
     fine + up_bilinear_composed(coarse)?.broadcast_mul(&blend_weight_composed(logits)?)?
 }
 
+/// `x·2σ(g)`, with `σ(g)` [`planes::blend_weight`] of `logits` (`[B, 1, H, W]`): the
+/// multi-scale network's gain ([`planes::gain`]), composed of candle ops.
+pub fn gained(x: &Tensor, logits: &Tensor) -> Result<Tensor> {
+    x.broadcast_mul(&(blend_weight_composed(logits)? * 2.0)?)
+}
+
 /// [`planes::blend_weight`] of every logit, composed of candle ops.
 fn blend_weight_composed(logits: &Tensor) -> Result<Tensor> {
     let limit = planes::BLEND_LIMIT as f64;

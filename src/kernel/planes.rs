@@ -308,6 +308,16 @@ pub fn blend_weight(l: f32) -> f32 {
     1.0 / (1.0 + (-l.clamp(-BLEND_LIMIT, BLEND_LIMIT)).exp())
 }
 
+/// The multi-scale network's gain, in place: every plane of `x` times `2σ(g)`, with
+/// `σ(g)` [`blend_weight`] of `logits` (one plane of the same size). A logit of 0 is a
+/// gain of exactly 1.
+pub fn gain(x: &mut Planes, logits: &[f32]) {
+    let n = x.w * x.h;
+    assert_eq!(logits.len(), n, "gain logits differ in size from their planes");
+    let g: Vec<f32> = logits.par_iter().map(|&l| 2.0 * blend_weight(l)).collect();
+    x.data.par_chunks_mut(n.max(1)).for_each(|plane| plane.iter_mut().zip(&g).for_each(|(v, g)| *v *= g));
+}
+
 /// The coarse-to-fine blend of the multi-scale network, in place: every plane of `fine`
 /// becomes `(1 − α)·fine + α·up`, with `α` from [`blend_weight`] of `logits` (one plane
 /// of the same size) and `up` the coarser result upsampled ([`Planes::up_bilinear`]).

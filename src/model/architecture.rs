@@ -96,6 +96,41 @@ pub struct Architecture {
     /// held within ±d̂) that follows the shading normal, fitted by least squares, is added
     /// back; noise, which does not follow the normal, stays out. `None`: d̂ as it is.
     pub diffuse_detail: Option<u8>,
+    /// A per-pixel gain on each branch's result (multi-scale only, `kpcn:gain`): the
+    /// full-resolution head predicts one more logit `g`, and the blended result is
+    /// multiplied by `2σ(g)`, between 0 and 2. Kernels only average the noisy colour
+    /// around a pixel, so shading finer than what they keep (a bump, the dark side of an
+    /// edge the average straddles) is out of their reach; a gain is not, and keeps a
+    /// black pixel black. A zero row of weights is a gain of exactly 1
+    /// ([`super::Model::with_gain`]).
+    pub gain: bool,
+    /// How the diffuse branch's network sees `d̃` (`kpcn:diffuse_input`); its kernels
+    /// always filter `d̃` itself.
+    pub diffuse_input: DiffuseInput,
+}
+
+/// How the diffuse branch's network sees the demodulated diffuse `d̃`, its gradients and
+/// its variance (`kpcn:diffuse_input`; the transform is [`features::log_colour_input`]).
+/// The kernels it predicts filter `d̃` itself either way, so the output keeps its energy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "tools", derive(clap::ValueEnum))]
+pub enum DiffuseInput {
+    /// `d̃` as it is: linear radiance, whose 4-spp hits are orders of magnitude above
+    /// their neighbours.
+    #[default]
+    Linear,
+    /// `ln(1 + d̃)`, its gradients and its variance, as the specular branch sees `s̃`.
+    Log,
+}
+
+impl DiffuseInput {
+    /// The name in a model file and on the command line.
+    pub const fn name(self) -> &'static str {
+        match self {
+            DiffuseInput::Linear => "linear",
+            DiffuseInput::Log => "log",
+        }
+    }
 }
 
 /// The widest [`Architecture::diffuse_detail`]: the rows a band's detail reads beyond it
@@ -321,6 +356,15 @@ impl Clamp {
 }
 
 impl Architecture {
+    /// Branch `b`'s network input (27 CHW planes, [`Features::branch_input`]) as this
+    /// model sees it, in place: the one place training and inference change it
+    /// ([`DiffuseInput`]).
+    pub fn prepare_input(&self, b: features::Branch, input: &mut [f32]) {
+        if b == features::Branch::Diffuse && self.diffuse_input == DiffuseInput::Log {
+            features::log_colour_input(input);
+        }
+    }
+
     /// What the model's inputs are made from.
     pub fn preprocessing(&self) -> Preprocessing {
         Preprocessing { variances: self.variances, exposure: self.exposure }
@@ -344,6 +388,8 @@ impl Architecture {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: DiffuseInput::Linear,
         }
     }
 
@@ -365,6 +411,8 @@ impl Architecture {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: DiffuseInput::Linear,
         }
     }
 
@@ -388,6 +436,8 @@ impl Architecture {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: DiffuseInput::Linear,
         }
     }
 
@@ -533,6 +583,9 @@ impl Architecture {
         }
         if self.design == Design::MultiScale && (self.kind != Kind::Kpcn || self.layers > 6) {
             return bad(format!("a multi-scale network is KPCN with 1–6 levels, not {self:?}"));
+        }
+        if self.gain && self.design != Design::MultiScale {
+            return bad(format!("a gain is for multi-scale networks, not {self:?}"));
         }
         if self.blend != ScaleBlend::Lerp && self.design != Design::MultiScale {
             return bad(format!("a flat network has no scales to blend, not {self:?}"));

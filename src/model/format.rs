@@ -2,7 +2,8 @@
 //! its metadata (`kpcn:*` keys), read and written atomically.
 
 use super::{
-    Architecture, BranchWeights, Clamp, Design, Exposure, Kind, Model, ModelError, ScaleBlend, Specular, Variances,
+    Architecture, BranchWeights, Clamp, Design, DiffuseInput, Exposure, Kind, Model, ModelError, ScaleBlend, Specular,
+    Variances,
 };
 use crate::features::{Branch, INPUT_LAYOUT};
 use candle_core::{DType, Device, Tensor};
@@ -31,12 +32,14 @@ impl Architecture {
             ("kpcn:variances", (if self.variances == Variances::Spatial { "spatial" } else { "file" }).to_string()),
             ("kpcn:specular", (if self.specular == Specular::Linear { "linear" } else { "log" }).to_string()),
             ("kpcn:exposure", (if self.exposure == Exposure::Auto { "auto" } else { "raw" }).to_string()),
+            ("kpcn:diffuse_input", self.diffuse_input.name().to_string()),
         ]
         .into_iter()
         .chain(self.specular_bound.map(|k| (bound_key(Branch::Specular), k.to_string())))
         .chain(self.diffuse_bound.map(|k| (bound_key(Branch::Diffuse), k.to_string())))
         .chain(self.diffuse_spread.map(|r| (SPREAD_KEY, r.to_string())))
         .chain(self.diffuse_detail.map(|r| (DETAIL_KEY, r.to_string())))
+        .chain(self.gain.then(|| (GAIN_KEY, "on".to_string())))
         .map(|(k, v)| (k.to_string(), v))
         .collect()
     }
@@ -133,6 +136,18 @@ impl Architecture {
             diffuse_spread: radius(SPREAD_KEY)?,
             // Files from before the choice keep d̂ as it is.
             diffuse_detail: radius(DETAIL_KEY)?,
+            // Files from before the choice see linear d̃.
+            diffuse_input: match m.get("kpcn:diffuse_input").map(String::as_str) {
+                None | Some("linear") => DiffuseInput::Linear,
+                Some("log") => DiffuseInput::Log,
+                Some(other) => return Err(err(format!("unknown diffuse input `{other}`"))),
+            },
+            // Files from before the choice have no gain.
+            gain: match m.get(GAIN_KEY).map(String::as_str) {
+                None => false,
+                Some("on") => true,
+                Some(other) => return Err(err(format!("metadata `{GAIN_KEY}` is `{other}`, not `on`"))),
+            },
         };
         a.validate(origin)?;
         Ok(a)
@@ -267,6 +282,9 @@ pub fn model_file_with_spread(bytes: &[u8], radius: Option<u8>, origin: &str) ->
 
 /// The metadata key of [`Architecture::diffuse_detail`].
 const DETAIL_KEY: &str = "kpcn:diffuse_detail";
+
+/// The metadata key of [`Architecture::gain`].
+const GAIN_KEY: &str = "kpcn:gain";
 
 /// The model file `bytes` with the diffuse detail restored over (2r + 1)² windows
 /// (`Some(r)`) or not (`None`) ([`Architecture::diffuse_detail`]), every weight kept bit

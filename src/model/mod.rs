@@ -16,8 +16,8 @@ pub mod registry;
 pub mod stream;
 
 pub use architecture::{
-    Architecture, Clamp, Design, Exposure, Kind, MAX_DIFFUSE_DETAIL, MAX_DIFFUSE_SPREAD, Preprocessing, Quality,
-    SIGNIFICANT_ERRORS, ScaleBlend, Specular, Variances,
+    Architecture, Clamp, Design, DiffuseInput, Exposure, Kind, MAX_DIFFUSE_DETAIL, MAX_DIFFUSE_SPREAD, Preprocessing,
+    Quality, SIGNIFICANT_ERRORS, ScaleBlend, Specular, Variances,
 };
 pub use format::{
     FORMAT_VERSION, model_file_with_bound, model_file_with_clamp, model_file_with_detail, model_file_with_spread,
@@ -121,6 +121,28 @@ impl Model {
         Ok(Model { arch, diffuse, specular, description: format!("untrained (Xavier-uniform, seed {seed})") })
     }
 
+    /// The same model with a gain ([`Architecture::gain`]) of exactly 1: the
+    /// full-resolution head of each branch gains a row of zero weights and a zero bias, so
+    /// every output keeps its bits until training moves them. A model that has a gain is
+    /// returned as it is.
+    pub fn with_gain(mut self) -> Result<Model, ModelError> {
+        if self.arch.gain {
+            return Ok(self);
+        }
+        let arch = Architecture { gain: true, ..self.arch };
+        arch.validate("with_gain")?;
+        for branch in [&mut self.diffuse, &mut self.specular] {
+            let (w, b) = branch.layers.last_mut().ok_or_else(|| ModelError::Format {
+                origin: "with_gain".into(),
+                what: "a branch without layers".into(),
+            })?;
+            *w = Tensor::cat(&[&*w, &w.narrow(0, 0, 1)?.zeros_like()?], 0)?;
+            *b = Tensor::cat(&[&*b, &b.narrow(0, 0, 1)?.zeros_like()?], 0)?;
+        }
+        self.arch = arch;
+        Ok(self)
+    }
+
     /// Whether the description marks it untrained.
     pub fn is_untrained(&self) -> bool {
         self.description.starts_with("untrained")
@@ -157,6 +179,32 @@ mod tests {
     }
 
     #[test]
+    fn a_gain_of_zero_weights_keeps_every_bit_and_is_recorded() {
+        use crate::features::INPUT_CHANNELS;
+        let model = Model::resolve("balanced").unwrap();
+        let gained = model.clone().with_gain().unwrap();
+        assert!(gained.arch.gain && !model.arch.gain);
+        let read = Model::from_bytes(&gained.to_bytes().unwrap(), "mem").unwrap();
+        assert!(read.arch.gain, "the gain is recorded in the file");
+        let (w, h) = (64, 64);
+        let mut rng = crate::rng::SplitMix64(7);
+        let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
+        let noisy: Vec<f32> =
+            (0..4 * w * h).map(|_| if rng.uniform_f32() < 0.02 { 40.0 } else { rng.uniform_f32() }).collect();
+        for (a, b) in [(&model.diffuse, &read.diffuse), (&model.specular, &read.specular)] {
+            let run = |arch: &Architecture, weights: &BranchWeights| {
+                let weights = pyramid::Weights::new(arch, weights).unwrap();
+                pyramid::forward(arch, &weights, input.clone(), noisy.clone(), w, h)
+            };
+            let bits = |v: [Vec<f32>; 3]| v.concat().iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert!(bits(run(&model.arch, a)) == bits(run(&read.arch, b)), "a zero gain changed the output");
+        }
+        // Not for flat networks, and a second call changes nothing.
+        assert!(Model::xavier(Architecture::small(Kind::Kpcn), 0).unwrap().with_gain().is_err());
+        assert_eq!(read.clone().with_gain().unwrap().diffuse.layers.len(), read.diffuse.layers.len());
+    }
+
+    #[test]
     fn the_network_matches_a_hand_computed_convolution() {
         // One 3×3 layer, 27 → 3 (DPCN), weights 1 on input channel 0 only, bias 0.5.
         let arch = Architecture {
@@ -175,6 +223,8 @@ mod tests {
             diffuse_bound: None,
             diffuse_spread: None,
             diffuse_detail: None,
+            gain: false,
+            diffuse_input: Default::default(),
         };
         let mut w = vec![0f32; 3 * 27 * 9];
         for o in 0..3 {
@@ -227,6 +277,8 @@ mod tests {
                 diffuse_bound: None,
                 diffuse_spread: None,
                 diffuse_detail: None,
+                gain: false,
+                diffuse_input: Default::default(),
             },
             7,
         )

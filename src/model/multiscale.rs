@@ -37,9 +37,17 @@ pub fn width(a: &Architecture, s: usize) -> usize {
     a.channels * (s + 1)
 }
 
-/// Outputs of head `s`: the kernel logits, plus a blend logit below the coarsest scale.
+/// Outputs of head `s`: the kernel logits, plus a blend logit below the coarsest scale,
+/// plus the gain logit at full resolution where the architecture has one
+/// ([`gain_channel`]).
 pub fn head_outputs(a: &Architecture, s: usize) -> usize {
-    a.kernel_size * a.kernel_size + usize::from(s + 1 < a.layers)
+    a.kernel_size * a.kernel_size + usize::from(s + 1 < a.layers) + usize::from(a.gain && s == 0)
+}
+
+/// The channel of the full-resolution head's logits that holds the gain logit
+/// ([`Architecture::gain`]): after the kernel logits and the blend logit.
+pub fn gain_channel(a: &Architecture) -> usize {
+    a.kernel_size * a.kernel_size + usize::from(1 < a.layers)
 }
 
 /// Index of the first decoder layer and of the first head in [`layer_shapes`].
@@ -305,6 +313,9 @@ pub trait Backend {
     /// ([`ScaleBlend::Lerp`]), or `fine + α·up(coarse)` ([`ScaleBlend::Detail`], whose
     /// `coarse` is already the coarser result less `down(fine)`).
     fn blend(&self, fine: Self::Value, coarse: &Self::Value, logits: &Self::Value) -> Result<Self::Value, Self::Error>;
+
+    /// `x·2σ(g)`, with `g` channel [`gain_channel`] of `logits` ([`Architecture::gain`]).
+    fn gain(&self, x: Self::Value, logits: &Self::Value) -> Result<Self::Value, Self::Error>;
 }
 
 /// The multi-scale network on a region: `input` its features (27 channels) and `noisy`
@@ -339,14 +350,15 @@ pub fn run<B: Backend>(a: &Architecture, b: &B, input: B::Value, noisy: B::Value
             b.conv(feat(s), head + j, false)?
         };
         let o = b.apply(&logits, &colour[s])?;
-        out = Some(match (out, a.blend) {
+        let o = match (out, a.blend) {
             (None, _) => o,
             (Some(coarse), ScaleBlend::Lerp) => b.blend(o, &coarse, &logits)?,
             (Some(coarse), ScaleBlend::Detail) => {
                 let rest = b.sub(&coarse, &b.pool(&o)?)?;
                 b.blend(o, &rest, &logits)?
             }
-        });
+        };
+        out = Some(if s == 0 && a.gain { b.gain(o, &logits)? } else { o });
     }
     Ok(out.expect("validated: at least one level"))
 }
@@ -414,6 +426,10 @@ impl Backend for Graph<'_> {
             ScaleBlend::Lerp => self.ops.blend(&fine, coarse, &logits)?,
             ScaleBlend::Detail => crate::kernel::ops::add_blended(&fine, coarse, &logits)?,
         })
+    }
+
+    fn gain(&self, x: Tensor, logits: &Tensor) -> Result<Tensor, ModelError> {
+        Ok(crate::kernel::ops::gained(&x, &logits.narrow(1, gain_channel(self.arch), 1)?)?)
     }
 }
 

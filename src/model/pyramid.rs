@@ -8,7 +8,7 @@ use super::multiscale::{self, Backend};
 use super::{Architecture, BranchWeights, ModelError, ScaleBlend};
 use crate::features::INPUT_CHANNELS;
 use crate::kernel::conv::{ConvLayer, conv, conv_rows, conv_up_concat};
-use crate::kernel::planes::{Planes, add_blended, blend};
+use crate::kernel::planes::{Planes, add_blended, blend, gain};
 use rayon::prelude::*;
 
 /// Working bytes per region pixel, for tile budgets: the input, two full-resolution
@@ -18,7 +18,7 @@ use rayon::prelude::*;
 /// the 3-level default.
 pub fn bytes_per_pixel(arch: &Architecture) -> usize {
     let k2 = arch.kernel_size * arch.kernel_size;
-    4 * (INPUT_CHANNELS + 2 * arch.channels + k2 + 1 + 16)
+    4 * (INPUT_CHANNELS + 2 * arch.channels + k2 + 1 + usize::from(arch.gain) + 16)
 }
 
 /// One branch's convolutions packed for [`conv`], converted from the model's tensors
@@ -157,6 +157,11 @@ impl Backend for Region<'_> {
         blend_scales(self.arch, &mut fine, &coarse.up_bilinear(), logits);
         Ok(fine)
     }
+
+    fn gain(&self, mut x: Planes, logits: &Planes) -> Result<Planes, Self::Error> {
+        gain(&mut x, logits.plane(multiscale::gain_channel(self.arch)));
+        Ok(x)
+    }
 }
 
 /// `a − b`, plane by plane (the same shape).
@@ -224,6 +229,8 @@ mod tests {
         for blend in [ScaleBlend::Lerp, ScaleBlend::Detail] {
             matches_candle(Architecture { blend, ..Architecture::multiscale() });
         }
+        // Xavier weights give the gain logit a spread of values.
+        matches_candle(Architecture { gain: true, ..Architecture::multiscale() });
     }
 
     fn matches_candle(arch: Architecture) {
@@ -244,8 +251,9 @@ mod tests {
                     let (a, b) = (ours[c][i], theirs[c * w * h + i]);
                     assert!(
                         (a - b).abs() < 1e-4 * (1.0 + b.abs()),
-                        "{:?} {branch} channel {c} pixel {i}: {a} vs {b}",
-                        arch.blend
+                        "{:?} (gain {}) {branch} channel {c} pixel {i}: {a} vs {b}",
+                        arch.blend,
+                        arch.gain
                     );
                 }
             }

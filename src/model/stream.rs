@@ -74,6 +74,11 @@ enum Op {
         a: usize,
         b: usize,
     },
+    /// `x·2σ(g)`, rows alike ([`Backend::gain`]).
+    Gain {
+        x: usize,
+        logits: usize,
+    },
     Blend {
         fine: usize,
         coarse: usize,
@@ -194,6 +199,10 @@ impl Backend for Recorder {
     fn blend(&self, fine: usize, coarse: &usize, logits: &usize) -> Result<usize, Self::Error> {
         Ok(self.add(Op::Blend { fine, coarse: *coarse, logits: *logits }, self.level(fine)))
     }
+
+    fn gain(&self, x: usize, logits: &usize) -> Result<usize, Self::Error> {
+        Ok(self.add(Op::Gain { x, logits: *logits }, self.level(x)))
+    }
 }
 
 /// One branch of a multi-scale network evaluated on a `w × h` region (sides multiples
@@ -307,7 +316,7 @@ impl<'a> Stream<'a> {
                 let r = self.arch.kernel_size / 2;
                 vec![(logits, a, b), clip(colour, ai - r as isize, b2 + r)]
             }
-            Op::Sub { a: x, b: y } => vec![(x, a, b), (y, a, b)],
+            Op::Sub { a: x, b: y } | Op::Gain { x, logits: y } => vec![(x, a, b), (y, a, b)],
             Op::Blend { fine, coarse, logits } => {
                 vec![(fine, a, b), (logits, a, b), clip(coarse, (a / 2) as isize - 1, (b - 1) / 2 + 2)]
             }
@@ -471,6 +480,7 @@ impl<'a> Stream<'a> {
                 apply_rows(&logits, &|c, y| store.row(c, y), a, self.height(colour), self.arch.kernel_size)
             }
             Op::Sub { .. } => ok(r.sub(&window(0).0, &window(1).0)),
+            Op::Gain { .. } => ok(r.gain(window(0).0.into_owned(), &window(1).0)),
             Op::Blend { .. } => {
                 let (mut fine, logits, (coarse, lo)) = (window(0).0.into_owned(), window(1).0, window(2));
                 let up = coarse.up_bilinear_rows(a - 2 * lo..b - 2 * lo);
@@ -489,7 +499,7 @@ fn inputs(op: &Op) -> Vec<usize> {
         Op::UpConcat { coarse, skip, .. } => vec![skip, coarse],
         Op::Colour { noisy, .. } => vec![noisy],
         Op::Apply { logits, colour } => vec![logits, colour],
-        Op::Sub { a, b } => vec![a, b],
+        Op::Sub { a, b } | Op::Gain { x: a, logits: b } => vec![a, b],
         Op::Blend { fine, coarse, logits } => vec![fine, logits, coarse],
     }
 }
@@ -534,11 +544,17 @@ mod tests {
     #[test]
     fn a_streamed_region_equals_the_whole_region_bit_for_bit() {
         use crate::model::ScaleBlend;
-        for (preset, blend, seed) in
-            [("balanced", ScaleBlend::Lerp, 0), ("compact", ScaleBlend::Lerp, 1), ("balanced", ScaleBlend::Detail, 2)]
-        {
-            let model = Model::resolve(preset).unwrap();
-            let arch = Architecture { blend, ..model.arch };
+        let cases = [
+            ("balanced", ScaleBlend::Lerp, false, 0),
+            ("compact", ScaleBlend::Lerp, false, 1),
+            ("balanced", ScaleBlend::Detail, false, 2),
+            ("balanced", ScaleBlend::Lerp, true, 3),
+        ];
+        for (preset, blend, gain, seed) in cases {
+            let shipped = Model::resolve(preset).unwrap();
+            let arch = Architecture { blend, gain, ..shipped.arch };
+            // A gain needs weights that move it: Xavier's.
+            let model = if gain { Model::xavier(arch, seed).unwrap() } else { shipped };
             let (w, h) = (64, 6 * arch.alignment().max(32));
             let mut rng = crate::rng::SplitMix64(seed);
             let input: Vec<f32> = (0..INPUT_CHANNELS * w * h).map(|_| rng.uniform_f32() - 0.5).collect();
@@ -578,7 +594,7 @@ mod tests {
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert!(
                         bits(&got[c]) == bits(&whole[c]),
-                        "{preset} ({blend:?}), {rows_per_push} rows a push, steps of {step}: channel {c} differs"
+                        "{preset} ({blend:?}, gain {gain}), {rows_per_push} rows a push, steps of {step}: channel {c} differs"
                     );
                 }
             }

@@ -468,6 +468,7 @@ pub fn batch_augmented(
             let albedo_at = |c: usize| crops[1][c * p * p + ff.y * p + ff.x];
             add_firefly(&mut patch_input, &mut region, (ff.x, ff.y), (p, rf, rk), b, radiance, albedo_at);
         }
+        arch.prepare_input(b, &mut patch_input);
         input.extend(patch_input);
         match b {
             Branch::Specular => noisy.extend(region.into_iter().map(|v| arch.specular.kernel_input(v))),

@@ -130,6 +130,8 @@ pub fn multiscale_levels(seed: u64, levels: usize, channels: usize) -> kpcn::mod
         diffuse_bound: None,
         diffuse_spread: None,
         diffuse_detail: None,
+        gain: false,
+        diffuse_input: Default::default(),
     };
     Model::xavier(arch, seed).unwrap()
 }
