@@ -554,7 +554,7 @@ fn a_gain_starts_at_one_and_trains() {
     std::fs::remove_dir_all(&run).unwrap();
     let out = train(&flat);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("a gain is for multi-scale networks"), "{err}");
+    assert!(!out.status.success() && err.contains("--gain: a gain is for multi-scale networks"), "{err}");
 }
 
 /// The branch's weights, as bits.

@@ -7,7 +7,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kpcn::eval::plot::write_png;
 use kpcn::features::Branch;
 use kpcn::kernel::ops::Ops;
-use kpcn::model::{Clamp, DiffuseInput, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
+use kpcn::model::{Clamp, Design, DiffuseInput, Exposure, Kind, Model, Preprocessing, ScaleBlend, Specular, Variances};
 use kpcn::train::data::{CheckSet, Dataset};
 use kpcn::train::{CHECKPOINT, Fireflies, LogRow, Loss, LossScale, TrainOptions, Trainer};
 use kpcn::train::{curves, records};
@@ -306,6 +306,11 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             model.arch.blend = b;
         }
         if args.gain {
+            if model.arch.design != Design::MultiScale {
+                bail!(
+                    "--gain: a gain is for multi-scale networks, and this model is flat (drop --gain, or start from a multi-scale model or --preset)"
+                );
+            }
             model = model.with_gain()?;
         }
         if let Some(d) = args.diffuse_input {
