@@ -17,7 +17,9 @@
 # PER_SCENE=1 also prints each frame's relMSE, and the other models' multiples of it.
 # "light kept" is the denoised frame's mean over the noisy input's (geometric mean over the
 # frames; the input is the root R,G,B, or LAYER.Combined beside LAYER.Denoised), and
-# "off > 5 %" counts the frames whose ratio is more than 5 % from 1: brightness, which
+# "off > 5 %" counts the frames whose ratio is more than 5 % from 1; "÷ reference mean" is
+# the denoised mean over the reference's (geometric mean), for frames lit by a few hits,
+# whose noisy mean is itself several per cent off: brightness, which
 # relMSE forgives (light missing from a bright pixel costs less than light in a dark one;
 # python3 with numpy and OpenEXR reads the means, as for benches/quality_blender.sh).
 # "× floor" is relMSE over the reference's own expected error (`reference_relmse_floor` in
@@ -67,32 +69,33 @@ for model in "$@"; do
     while IFS=, read -r scene _ _ _ spp file reference _; do
         $kpcn denoise "$corpus/$file" -o "$work/den.exr" --model "$model" -q --threads 2
         s=$($kpcn eval -r "$corpus/$reference" "$work/den.exr" --channels "${CHANNELS:-auto}" --format csv | tail -1 | cut -d, -f3,6,7)
-        kept=$(python3 - "$work/den.exr" "${CHANNELS:-auto}" <<'PY'
+        kept=$(python3 - "$work/den.exr" "${CHANNELS:-auto}" "$corpus/$reference" <<'PY'
 import sys, numpy as np, OpenEXR, Imath
 f = OpenEXR.InputFile(sys.argv[1]); layer = sys.argv[2]
 if layer == "auto":
     out, noisy = "denoised.", ""
 else:  # Blender's LAYER.Denoised sits beside its noisy LAYER.Combined
     out, noisy = layer + ".", layer.removesuffix("Denoised") + "Combined." if layer.endswith(".Denoised") else ""
-mean = lambda p: np.mean([np.frombuffer(f.channel(p + c, Imath.PixelType(Imath.PixelType.FLOAT)), np.float32).astype(np.float64).mean() for c in "RGB"])
-print(f"{mean(out) / max(mean(noisy), 1e-12):.6f}")
+mean = lambda f, p: np.mean([np.frombuffer(f.channel(p + c, Imath.PixelType(Imath.PixelType.FLOAT)), np.float32).astype(np.float64).mean() for c in "RGB"])
+reference = mean(OpenEXR.InputFile(sys.argv[3]), "")
+print(f"{mean(f, out) / max(mean(f, noisy), 1e-12):.6f} {mean(f, out) / max(reference, 1e-12):.6f}")
 PY
 )
         floor=$(awk -v scene="$scene" -v r="${s%%,*}" '$1 == scene { f = $2 } END { print (f > 0 ? sprintf("%.4f", r / f) : "-") }' "$work/floors")
-        echo "$m $spp $scene ${s//,/ } $kept $floor" >>"$work/scores"
+        echo "$m $spp $scene ${s//,/ } ${kept% *} $floor ${kept#* }" >>"$work/scores"
     done <<<"$rows"
     m=$((m + 1))
 done
 # Per model and sample count: geometric means, and the same as multiples of model 0's.
 awk -v names="$*" 'BEGIN { split(names, N, " ") }
     { k = $1 " " $2; for (i = 4; i <= 7; i++) g[k, i] += log($i); n[k]++; spps[$2] = 1; models = $1 > models ? $1 : models
-      off[k] += ($7 > 1.05 || $7 < 0.95); if ($8 != "-") { fl[k] += log($8); nf[k]++ } }
+      off[k] += ($7 > 1.05 || $7 < 0.95); if ($8 != "-") { fl[k] += log($8); nf[k]++ }; truth[k] += log($9) }
     END { for (m = 0; m <= models; m++) for (s in spps) { k = m " " s; b = 0 " " s;
-            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f | %.3f %15d | %s\n", N[m + 1], s, n[k],
+            printf "%-44s %4s %6d | %.5f   %.5f   %.5f   | %.3f / %.3f / %.3f | %.3f %15d | %.3f %11s | %s\n", N[m + 1], s, n[k],
                 exp(g[k, 4] / n[k]), exp(g[k, 5] / n[k]), exp(g[k, 6] / n[k]),
                 exp((g[k, 4] - g[b, 4]) / n[k]), exp((g[k, 5] - g[b, 5]) / n[k]), exp((g[k, 6] - g[b, 6]) / n[k]),
-                exp(g[k, 7] / n[k]), off[k], nf[k] ? sprintf("%.2f", exp(fl[k] / nf[k])) : "-" } }' "$work/scores" >"$work/table"
-printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %-21s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %" "× floor"
+                exp(g[k, 7] / n[k]), off[k], exp(truth[k] / n[k]), "", nf[k] ? sprintf("%.2f", exp(fl[k] / nf[k])) : "-" } }' "$work/scores" >"$work/table"
+printf '%-44s %4s %6s | %-9s %-9s %-9s | %-37s | %-21s | %-17s | %s\n' model spp scenes relMSE "−0.1%" "−1%" "× first model (relMSE / −0.1% / −1%)" "light kept, off > 5 %" "÷ reference mean" "× floor"
 # In the order the models were named, then by sample count.
 for model in "$@"; do grep "^$model " "$work/table" | sort -k2,2n; done
 # PER_SCENE=1: each frame's relMSE under the first model and every other's multiple of it,
