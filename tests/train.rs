@@ -38,6 +38,15 @@ fn dataset(dir: &Path) {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
+/// [`dataset`] in a fresh folder, loaded with every 3rd scene held out and no cache: the
+/// folder comes back too, since the dataset's files live as long as it does.
+fn loaded_dataset() -> (tempfile::TempDir, Dataset) {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path());
+    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    (dir, data)
+}
+
 fn options(steps: u64) -> TrainOptions {
     TrainOptions {
         phase1_steps: steps,
@@ -102,9 +111,7 @@ fn weights(m: &Model) -> Vec<u32> {
 
 #[test]
 fn training_lowers_the_loss_and_resumes_bit_exactly() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let (dir, data) = loaded_dataset();
     assert_eq!((data.train.len(), data.validation.len()), (4, 2), "whole scenes are held out");
 
     // The loss on a fixed batch goes down.
@@ -200,9 +207,7 @@ fn a_channel_ordered_batch_is_the_batch_with_its_planes_reordered() {
 
 #[test]
 fn an_oriented_batch_is_the_batch_mirrored_and_transposed_alike() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let (_dir, data) = loaded_dataset();
     let frames: Vec<_> = data.train.iter().take(2).collect();
     let origins = vec![(4, 4), (6, 2)];
     let arch = tiny().arch;
@@ -469,9 +474,7 @@ fn the_frame_cache_returns_the_same_frames_and_notices_changed_sources() {
 
 #[test]
 fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let (_dir, data) = loaded_dataset();
     let ms = crate::util::tiny_multiscale(2);
     // 9 + 2 × 16 context pixels is not a multiple of 4.
     let e = Trainer::new(&ms, &data, TrainOptions { patch: 9, ..options(10) }).err().expect("refused").to_string();
@@ -518,9 +521,7 @@ fn the_multiscale_network_trains_and_refuses_patches_off_its_grid() {
 /// and trains; the CLI adds it to an --init model, and refuses it for a flat one.
 #[test]
 fn a_gain_starts_at_one_and_trains() {
-    let dir = tempfile::tempdir().unwrap();
-    dataset(dir.path());
-    let data = Dataset::load(dir.path(), 3, false, Default::default()).unwrap();
+    let (dir, data) = loaded_dataset();
     let plain = crate::util::tiny_multiscale(2);
     let gained = plain.clone().with_gain().unwrap();
     let frames: Vec<_> = data.train.iter().collect();
