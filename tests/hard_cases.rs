@@ -64,7 +64,15 @@ const MODELS: [&str; 4] = ["compact", "fast", "balanced", "high"];
 /// left interior at −7.59 % and corridor at −8.08 %, the `relative` one after it brought
 /// them back this far. On our Cycles corpus it keeps more light than `balanced` on the
 /// validation split (0.89 against 0.72 of the noisy mean at 4 spp) and a little less on 21
-/// scenes no run trained on (0.92 against 0.94; models/README.md). A frame not listed must
+/// scenes no run trained on (0.92 against 0.94; models/README.md). Then `balanced`'s
+/// diffuse branch learnt to see ln(1 + d̃) (2026-12-07, thirty-fourth session,
+/// scripts/train-diffuse-log.sh): cornell, product, glass and firefly keep more light
+/// (firefly −7.72 / −9.64 %), interior (−4.29 / −1.91 %) and corridor (−1.54 %) a little
+/// less, and slit far less at 4 spp (−24.13 / −20.36 %, from −7.83 / −17.88): on the three
+/// `slit` frames of this size against 2,048-spp references it keeps 0.80 / 0.88 / 0.85 of
+/// the light at 4 spp (before: 0.96 / 0.99 / 0.95) and 0.84–0.94 at 16 (0.86–0.95), with a
+/// quarter less relMSE, while on our Cycles scenes it keeps as much light or more
+/// (BENCHMARKS.md, "`balanced`'s diffuse branch sees ln(1 + d̃)"). A frame not listed must
 /// stay within 1 %, and a listed one must not move further.
 const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("compact", "cornell", 4, 0.017),
@@ -91,17 +99,16 @@ const KNOWN_GAPS: &[(&str, &str, u32, f64)] = &[
     ("fast", "corridor", 16, 0.028),
     ("fast", "slit", 4, 0.095),
     ("fast", "slit", 16, 0.178),
-    ("balanced", "cornell", 4, 0.019),
-    ("balanced", "interior", 4, 0.037),
-    ("balanced", "interior", 16, 0.018),
-    ("balanced", "product", 4, 0.022),
-    ("balanced", "product", 16, 0.011),
-    ("balanced", "glass", 4, 0.014),
-    ("balanced", "firefly", 4, 0.085),
-    ("balanced", "firefly", 16, 0.104),
-    ("balanced", "corridor", 4, 0.011),
-    ("balanced", "slit", 4, 0.079),
-    ("balanced", "slit", 16, 0.179),
+    ("balanced", "cornell", 4, 0.015),
+    ("balanced", "interior", 4, 0.043),
+    ("balanced", "interior", 16, 0.020),
+    ("balanced", "product", 4, 0.017),
+    ("balanced", "glass", 4, 0.012),
+    ("balanced", "firefly", 4, 0.078),
+    ("balanced", "firefly", 16, 0.097),
+    ("balanced", "corridor", 4, 0.016),
+    ("balanced", "slit", 4, 0.242),
+    ("balanced", "slit", 16, 0.204),
     ("high", "cornell", 4, 0.023),
     ("high", "cornell", 16, 0.013),
     ("high", "interior", 4, 0.052),

@@ -389,8 +389,11 @@ mod tests {
     fn every_rung_of_the_ladder_is_shipped_with_its_architecture() {
         for q in Quality::ALL {
             let m = Model::resolve(q.name()).unwrap();
-            // The presets see raw radiance; `balanced` was fine-tuned auto-exposed.
-            let exposure = if q == Quality::Balanced { Exposure::Auto } else { Exposure::Raw };
+            // The presets see raw radiance and linear diffuse; `balanced` was fine-tuned
+            // auto-exposed, and its diffuse branch to see ln(1 + d̃).
+            let balanced = q == Quality::Balanced;
+            let exposure = if balanced { Exposure::Auto } else { Exposure::Raw };
+            let diffuse_input = if balanced { DiffuseInput::Log } else { DiffuseInput::Linear };
             // `fast` and `balanced` (the default) had their specular branches retrained, and
             // ship with the `significant` clamp, the specular branch bounded, the diffuse
             // branch under a ceiling (`kpcn model bound`) and with its detail restored
@@ -406,6 +409,7 @@ mod tests {
                 specular_bound,
                 diffuse_bound,
                 diffuse_detail,
+                diffuse_input,
                 ..Architecture::ladder(q)
             };
             assert_eq!(m.arch, want, "{}", q.name());
