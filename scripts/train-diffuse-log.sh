@@ -18,7 +18,7 @@
 #      only, `--diffuse-input log --loss relative --loss-scale exposed --augment`, KPCN_STEPS
 #      steps, lr KPCN_LR cosine, no phase 2, batch 4, 96-px patches, every 5th scene held out
 #      (WORK/run, its learning curve in log.csv): about 20 min on 2 idle cores;
-#   3. the shipped form, as scripts/train-specular.sh makes it: f16, the `significant` clamp,
+#   3. the shipped form (scripts/steps-after-network.sh): f16, the `significant` clamp,
 #      the specular bound of 2 standard errors, the diffuse ceiling of KPCN_CEILING standard
 #      errors (2: on our own sun-patch rooms and unseen scenes the margins 3, 4, 8 and none
 #      give more error, BENCHMARKS.md), the diffuse detail over 15x15 windows:
@@ -48,10 +48,5 @@ if [ ! -f "$work/run/model.safetensors" ]; then
         --checkpoint-every 200 --validate-every 250
 fi
 
-out=$work/$model.safetensors
-"$kpcn" model half "$work/run/model.safetensors" -o "$out"
-"$kpcn" model clamp "$out" --clamp significant -o "$out"
-"$kpcn" model bound "$out" --branch specular --errors 2 -o "$out"
-"$kpcn" model bound "$out" --branch diffuse --errors "$ceiling" -o "$out"
-"$kpcn" model detail "$out" --radius 7 -o "$out"
-echo "$out"
+scripts/steps-after-network.sh "$kpcn" "$work/run/model.safetensors" "$work/$model.safetensors" "$ceiling"
+echo "$work/$model.safetensors"

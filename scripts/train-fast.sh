@@ -43,11 +43,7 @@ kpcn=$(scripts/pinned-kpcn.sh "$work")
 KPCN_WORK=$work/ladder scripts/train-ladder.sh fast
 steps=$work/fast-steps.safetensors
 if [ ! -f "$steps" ]; then
-    "$kpcn" model half "$work/ladder/fast/model.safetensors" -o "$steps.partial"
-    "$kpcn" model clamp "$steps.partial" --clamp significant -o "$steps.partial"
-    "$kpcn" model bound "$steps.partial" --branch specular --errors 2 -o "$steps.partial"
-    "$kpcn" model bound "$steps.partial" --branch diffuse --errors 2 -o "$steps.partial"
-    "$kpcn" model detail "$steps.partial" --radius 7 -o "$steps.partial"
+    scripts/steps-after-network.sh "$kpcn" "$work/ladder/fast/model.safetensors" "$steps.partial"
     mv "$steps.partial" "$steps"
 fi
 
