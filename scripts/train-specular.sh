@@ -60,19 +60,18 @@ KPCN_WORK=$work/$model KPCN_SIM=$work/sim KPCN_LOSS=${KPCN_LOSS:-relmse-local} K
     KPCN_PHASE2_STEPS=0 KPCN_TRAIN_ARGS="--fresh specular --only specular $extra" \
     scripts/train-cycles.sh "$corpus" "$scenes" "$model"
 
-# The ladder's rungs ship in f16; `compact` and `spatial` in f32, as they were.
-case $model in
-    fast | balanced | high) "$kpcn" model half "$work/$model/run/model.safetensors" -o "$work/$model.safetensors" ;;
-    *) cp "$work/$model/run/model.safetensors" "$work/$model.safetensors" ;;
-esac
-clamp=fine-pairs-twice
-[ "$model" = balanced ] && clamp=significant
-"$kpcn" model clamp "$work/$model.safetensors" --clamp "$clamp" -o "$work/$model.safetensors"
-"$kpcn" model bound "$work/$model.safetensors" --branch specular --errors 2 -o "$work/$model.safetensors"
-# `balanced` also ships with its diffuse branch's ceiling (kept off the other models: not
-# measured on them).
+out=$work/$model.safetensors
 if [ "$model" = balanced ]; then
-    "$kpcn" model bound "$work/$model.safetensors" --branch diffuse --errors 2 -o "$work/$model.safetensors"
-    "$kpcn" model detail "$work/$model.safetensors" --radius 7 -o "$work/$model.safetensors"
+    # `balanced` ships with all of its steps after the network, the diffuse ceiling and
+    # detail among them (kept off the other models: not measured on them).
+    scripts/steps-after-network.sh "$kpcn" "$work/$model/run/model.safetensors" "$out"
+else
+    # The ladder's rungs ship in f16; `compact` and `spatial` in f32, as they were.
+    case $model in
+        fast | high) "$kpcn" model half "$work/$model/run/model.safetensors" -o "$out" ;;
+        *) cp "$work/$model/run/model.safetensors" "$out" ;;
+    esac
+    "$kpcn" model clamp "$out" --clamp fine-pairs-twice -o "$out"
+    "$kpcn" model bound "$out" --branch specular --errors 2 -o "$out"
 fi
-echo "$work/$model.safetensors"
+echo "$out"
